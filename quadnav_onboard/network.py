@@ -1,0 +1,96 @@
+"""The paper's DQN (Camci & Kayacan, Fig. 3), with the options our ablations add.
+
+Depth lane: conv 8@10x10 stride 2 -> ReLU -> conv 16@6x6 -> ReLU -> conv 32@3x3 -> ReLU,
+flatten (32*5*5 = 800) -> 64 -> 64. Position lane: x -> 16, y -> 8, z -> 8 (each its own linear
+sub-lane), concatenated (32) -> 16. Head: concat (80) -> 64 -> 32 -> n_actions, no activation on the
+last layer. All hidden layers use ReLU. With the defaults this has 73,946 parameters.
+
+Options (all off by default = the paper): ``depth_history`` stacks the last k depth frames as
+input channels; ``position_history`` feeds the last k relative positions to each sub-lane;
+``dueling`` splits the head's last layer into value and advantage streams.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+__all__ = ["DQN", "NetworkConfig", "count_parameters"]
+
+INPUT_SIZE = 32
+"""Side (pixels) of the square depth input."""
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Shape of the Q-network."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    n_actions: int = 18
+    """Number of motion primitives (outputs)."""
+    depth_history: int = 1
+    """Depth frames stacked as input channels (1 = the paper)."""
+    position_history: int = 1
+    """Relative positions fed to each position sub-lane (1 = the paper)."""
+    dueling: bool = False
+    """Dueling head (value + advantage) instead of the paper's plain head."""
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+class DQN(nn.Module):
+    """Q(s, ·) for s = (depth, relative position).
+
+    ``forward(depth, rel_pos)``: depth float32 (B, depth_history, 32, 32) in [0, 1];
+    rel_pos float32 (B, position_history, 3), metres, heading frame (x fwd, y left, z up), oldest
+    first. Returns Q-values (B, n_actions).
+    """
+
+    def __init__(self, config: NetworkConfig = NetworkConfig()) -> None:
+        super().__init__()
+        self.config = config
+        k_d, k_p = config.depth_history, config.position_history
+        self.depth_lane = nn.Sequential(
+            nn.Conv2d(k_d, 8, kernel_size=10, stride=2),
+            nn.ReLU(),
+            nn.Conv2d(8, 16, kernel_size=6),
+            nn.ReLU(),
+            nn.Conv2d(16, 32, kernel_size=3),
+            nn.ReLU(),
+            nn.Flatten(),
+            nn.Linear(800, 64),
+            nn.ReLU(),
+            nn.Linear(64, 64),
+            nn.ReLU(),
+        )
+        self.pos_x = nn.Sequential(nn.Linear(k_p, 16), nn.ReLU())
+        self.pos_y = nn.Sequential(nn.Linear(k_p, 8), nn.ReLU())
+        self.pos_z = nn.Sequential(nn.Linear(k_p, 8), nn.ReLU())
+        self.pos_merge = nn.Sequential(nn.Linear(32, 16), nn.ReLU())
+        self.trunk = nn.Sequential(nn.Linear(80, 64), nn.ReLU(), nn.Linear(64, 32), nn.ReLU())
+        if config.dueling:
+            self.value = nn.Linear(32, 1)
+            self.advantage = nn.Linear(32, config.n_actions)
+        else:
+            self.out = nn.Linear(32, config.n_actions)
+
+    def forward(self, depth: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
+        d = self.depth_lane(depth)
+        p = torch.cat(
+            [self.pos_x(rel_pos[..., 0]), self.pos_y(rel_pos[..., 1]), self.pos_z(rel_pos[..., 2])],
+            dim=-1,
+        )
+        h = self.trunk(torch.cat([d, self.pos_merge(p)], dim=-1))
+        if self.config.dueling:
+            adv = self.advantage(h)
+            return self.value(h) + adv - adv.mean(dim=-1, keepdim=True)
+        return self.out(h)
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,87 @@
+"""Depth preprocessing: one function from a raw depth frame to the network's 32x32 input.
+
+A D435 delivers uint16 depth in millimetres with 0 for "no data". The network sees a float32
+32x32 image in [0, 1]: depth in metres, clipped to [min_range_m, max_range_m], divided by
+max_range_m. Invalid pixels (0, NaN, beyond max range) read as max range ("nothing seen");
+pixels nearer than min range read as min range. Downsampling is area averaging
+(``cv2.INTER_AREA``), applied after invalid handling so holes do not pull the average to zero.
+
+The same functions serve the simulator (batched float depth) and the vehicle (uint16 frames):
+what is trained is exactly what flies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["DepthFrameError", "PreprocessConfig", "normalize_depth_m", "preprocess_depth_mm"]
+
+OUT_SIZE = 32
+
+
+class DepthFrameError(ValueError):
+    """A depth frame that cannot be used (wrong dtype or shape, or nothing valid in it)."""
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    """Depth-to-input conversion; defaults are the D435's usable range."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    min_range_m: float = 0.2
+    """Nearest valid depth (m); nearer readings are clipped up to it."""
+    max_range_m: float = 10.0
+    """Farthest depth (m); farther and invalid readings become this, i.e. 1.0 after scaling."""
+    min_valid_fraction: float = 0.05
+    """A frame with fewer valid pixels than this fraction is rejected as unusable."""
+
+
+def normalize_depth_m(
+    depth_m: NDArray[np.floating], cfg: PreprocessConfig = PreprocessConfig()
+) -> NDArray[np.float32]:
+    """Depth in metres (any shape; 0, NaN, Inf or > max = invalid) -> float32 in [min/max, 1]."""
+    d = np.asarray(depth_m, dtype=np.float32)
+    invalid = ~np.isfinite(d) | (d <= 0.0) | (d > cfg.max_range_m)
+    d = np.where(invalid, cfg.max_range_m, np.clip(d, cfg.min_range_m, cfg.max_range_m))
+    return (d / cfg.max_range_m).astype(np.float32)
+
+
+def area_downsample(img: NDArray[np.float32], size: int = OUT_SIZE) -> NDArray[np.float32]:
+    """Area-average an (H, W) or (N, H, W) float32 image to (…, size, size)."""
+    if img.ndim == 2:
+        return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)
+    n, h, w = img.shape
+    if h % size == 0 and w % size == 0:  # exact block mean: identical to INTER_AREA, vectorised
+        return img.reshape(n, size, h // size, size, w // size).mean(axis=(2, 4), dtype=np.float32)
+    return np.stack([cv2.resize(f, (size, size), interpolation=cv2.INTER_AREA) for f in img])
+
+
+def preprocess_depth_mm(
+    frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()
+) -> NDArray[np.float32]:
+    """Raw D435 depth (uint16 mm, shape (H, W), 0 = invalid) -> network input float32 (32, 32).
+
+    Raises :class:`DepthFrameError` for a wrong dtype or shape, or when fewer than
+    ``min_valid_fraction`` of the pixels hold a valid reading.
+    """
+    arr = np.asarray(frame)
+    if arr.dtype != np.uint16:
+        raise DepthFrameError(f"depth frame must be uint16 millimetres, got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[0] < OUT_SIZE or arr.shape[1] < OUT_SIZE:
+        raise DepthFrameError(
+            f"depth frame must be 2-D and at least {OUT_SIZE}x{OUT_SIZE}, got shape {arr.shape}"
+        )
+    max_mm = cfg.max_range_m * 1000.0
+    valid = (arr > 0) & (arr <= max_mm)
+    frac = float(valid.mean())
+    if frac < cfg.min_valid_fraction:
+        raise DepthFrameError(
+            f"depth frame has {frac:.1%} valid pixels (< {cfg.min_valid_fraction:.0%}): camera blocked or broken?"
+        )
+    depth_m = arr.astype(np.float32) * np.float32(0.001)
+    return area_downsample(normalize_depth_m(depth_m, cfg))

@@ -1,0 +1,1 @@
+"""Flight records: the MCAP recorder and the ``quadnav-review`` tool."""
