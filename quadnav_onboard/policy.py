@@ -1,0 +1,71 @@
+"""The greedy policy: a loaded checkpoint that maps an observation to a motion primitive.
+
+``Policy.act(depth, rel)`` runs the Q-network once without gradients and returns the arg-max
+action and the Q-values. Inputs are the arrays of :class:`quadnav_onboard.observation.ObservationHistory`:
+depth (k_d, 32, 32) float32 in [0, 1] and rel (k_p, 3) float32, metres, heading frame, oldest first.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import ArrayLike, NDArray
+
+from quadnav_onboard.checkpoint import Checkpoint, load_checkpoint
+from quadnav_onboard.config import PrimitiveConfig, parse_config
+from quadnav_onboard.preprocess import PreprocessConfig
+from quadnav_onboard.primitives import PrimitiveSet
+
+__all__ = ["DEFAULT_MODEL_PATH", "Policy"]
+
+DEFAULT_MODEL_PATH = Path(__file__).resolve().parent / "models" / "default.pt"
+"""The shipped checkpoint the daemon and ``quadnav-sim eval`` load by default."""
+
+
+class Policy:
+    """Greedy action selection with a loaded :class:`Checkpoint` (network in eval mode)."""
+
+    def __init__(self, checkpoint: Checkpoint) -> None:
+        self.checkpoint = checkpoint
+        self.model = checkpoint.model
+        self.model.eval()
+        self.network = checkpoint.network
+        self.depth_history = checkpoint.network.depth_history
+        self.position_history = checkpoint.network.position_history
+        self.n_actions = checkpoint.network.n_actions
+
+    @classmethod
+    def from_path(cls, path: str | Path = DEFAULT_MODEL_PATH) -> Policy:
+        """Load a checkpoint file (raises :class:`quadnav_onboard.checkpoint.CheckpointError`)."""
+        return cls(load_checkpoint(path))
+
+    def primitive_config(self) -> PrimitiveConfig:
+        """The action set the model was trained with (defaults if the checkpoint does not say)."""
+        return parse_config(PrimitiveConfig, self.checkpoint.primitives, source="checkpoint.primitives")
+
+    def primitive_set(self) -> PrimitiveSet:
+        return self.primitive_config().build()
+
+    def preprocess_config(self) -> PreprocessConfig:
+        """The depth preprocessing the model was trained with."""
+        return parse_config(PreprocessConfig, self.checkpoint.preprocess, source="checkpoint.preprocess")
+
+    def q_values_batch(self, depth: ArrayLike, rel: ArrayLike) -> NDArray[np.float32]:
+        """Q-values (B, n_actions) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3)."""
+        d = torch.as_tensor(np.asarray(depth, dtype=np.float32))
+        r = torch.as_tensor(np.asarray(rel, dtype=np.float32))
+        with torch.inference_mode():
+            return self.model(d, r).numpy()
+
+    def act(self, depth: ArrayLike, rel: ArrayLike) -> tuple[int, NDArray[np.float32]]:
+        """Greedy action for one observation; returns (action index, Q-values (n_actions,))."""
+        d = np.asarray(depth, dtype=np.float32)
+        r = np.asarray(rel, dtype=np.float32)
+        if d.shape != (self.depth_history, 32, 32):
+            raise ValueError(f"depth must have shape ({self.depth_history}, 32, 32), got {d.shape}")
+        if r.shape != (self.position_history, 3):
+            raise ValueError(f"rel must have shape ({self.position_history}, 3), got {r.shape}")
+        q = self.q_values_batch(d[None], r[None])[0]
+        return int(np.argmax(q)), q
