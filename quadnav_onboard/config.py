@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import pydantic
 import yaml
@@ -105,9 +105,9 @@ class PrimitiveConfig:
 
     __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
 
-    scale_m: float = pydantic.Field(default=1.0, gt=0, le=5)
+    scale_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 1.0
     """Displacement (m) per axis of one primitive: 1.0 in simulation, 0.5 for real flight."""
-    duration_s: float = pydantic.Field(default=1.0, gt=0, le=10)
+    duration_s: Annotated[float, pydantic.Field(gt=0, le=10)] = 1.0
     """Duration (s) of one step, i.e. of one primitive."""
     directions: tuple[tuple[float, float, float], ...] = DEFAULT_DIRECTIONS
     """Unit end displacements (forward, left, up), one per action; default: the paper's 18."""

@@ -81,7 +81,9 @@ def preprocess_depth_mm(
     frac = float(valid.mean())
     if frac < cfg.min_valid_fraction:
         raise DepthFrameError(
-            f"depth frame has {frac:.1%} valid pixels (< {cfg.min_valid_fraction:.0%}): camera blocked or broken?"
+            f"depth frame has {frac:.1%} valid pixels (< {cfg.min_valid_fraction:.0%}): "
+            "camera blocked or broken?"
         )
     depth_m = arr.astype(np.float32) * np.float32(0.001)
-    return area_downsample(normalize_depth_m(depth_m, cfg))
+    out = area_downsample(normalize_depth_m(depth_m, cfg))
+    return np.clip(out, cfg.min_range_m / cfg.max_range_m, 1.0, out=out)  # float rounding of the mean

@@ -1,0 +1,31 @@
+# quadnav: the two commands of the quick start, and the pieces CI uses.
+# torch is pinned to the CPU build CI has on disk; a plain `torch` may pull a multi-GB CUDA build.
+VENV ?= .venv
+PIP := $(VENV)/bin/pip
+TORCH_PIN := torch==2.13.0
+PYTEST_ARGS ?= -n 3
+
+.PHONY: dry-run test install install-dev lint
+
+$(VENV)/bin/python:
+	python3 -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+
+install: $(VENV)/bin/python
+	$(PIP) install -q $(TORCH_PIN)
+	$(PIP) install -q -e .
+
+install-dev: $(VENV)/bin/python
+	$(PIP) install -q $(TORCH_PIN)
+	$(PIP) install -q -e ".[dev]"
+
+## Quick start 1: install, then fly Env 1 in the sim (emulated PX4 over real MAVLink) with the bundled model.
+dry-run: install
+	$(VENV)/bin/quadnav-onboard --dry-run
+
+lint: install-dev
+	$(VENV)/bin/ruff check .
+
+## Quick start 2: install with the dev extra, then lint and run the whole test suite.
+test: lint
+	$(VENV)/bin/pytest $(PYTEST_ARGS)

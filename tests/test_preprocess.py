@@ -1,0 +1,90 @@
+"""Depth preprocessing: raw D435 frame -> 32x32 network input."""
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from quadnav_onboard.preprocess import (
+    DepthFrameError,
+    PreprocessConfig,
+    area_downsample,
+    normalize_depth_m,
+    preprocess_depth_mm,
+)
+
+CFG = PreprocessConfig()
+
+
+def test_uniform_depth_maps_to_depth_over_max_range():
+    """A wall at 5 m everywhere becomes 0.5 everywhere."""
+    out = preprocess_depth_mm(np.full((480, 848), 5000, np.uint16))
+    assert out.shape == (32, 32) and out.dtype == np.float32
+    np.testing.assert_allclose(out, 0.5, atol=1e-6)
+
+
+def test_invalid_pixels_read_as_far_not_near():
+    """0 (no data) and beyond-range pixels become max range (1.0), not zero."""
+    frame = np.full((240, 424), 2000, np.uint16)
+    frame[:, :212] = 0
+    frame[:10, 212:] = 65000
+    out = normalize_depth_m(frame.astype(np.float32) / 1000.0)
+    assert out[:, :212].min() == 1.0
+    assert out[:10, 212:].min() == 1.0
+    assert np.allclose(out[20:, 212:], 0.2)
+
+
+def test_near_readings_are_clipped_to_min_range():
+    out = normalize_depth_m(np.array([0.05, 0.2, 1.0], np.float32))
+    np.testing.assert_allclose(out, [0.02, 0.02, 0.1], rtol=1e-6)
+
+
+def test_area_downsampling_matches_opencv():
+    """The frame is area-averaged (INTER_AREA) after invalid handling."""
+    rng = np.random.default_rng(0)
+    frame = rng.integers(300, 9000, size=(480, 848), dtype=np.uint16)
+    expected = cv2.resize(frame.astype(np.float32) / 10000.0, (32, 32), interpolation=cv2.INTER_AREA)
+    np.testing.assert_allclose(preprocess_depth_mm(frame), expected, atol=1e-5)
+
+
+def test_left_obstacle_shows_on_the_left():
+    """A near object in the left third of the image lowers the left columns of the input."""
+    frame = np.full((240, 424), 8000, np.uint16)
+    frame[:, :141] = 1000
+    out = preprocess_depth_mm(frame)
+    assert out[:, :10].mean() < 0.2 and out[:, -10:].mean() > 0.7
+
+
+def test_batched_block_mean_equals_opencv_area():
+    """The vectorised batch path equals cv2 INTER_AREA frame by frame."""
+    rng = np.random.default_rng(2)
+    batch = rng.random((3, 64, 64), dtype=np.float32)
+    fast = area_downsample(batch)
+    slow = np.stack([cv2.resize(b, (32, 32), interpolation=cv2.INTER_AREA) for b in batch])
+    np.testing.assert_allclose(fast, slow, atol=1e-6)
+
+
+@given(st.integers(32, 200), st.integers(32, 200))
+def test_any_resolution_gives_32x32_in_range(h, w):
+    frame = np.random.default_rng(h * w).integers(0, 20000, size=(h, w), dtype=np.uint16)
+    frame[0, 0] = 1500  # at least some valid pixels
+    frame[:, : max(1, w // 2)] = 3000
+    out = preprocess_depth_mm(frame)
+    assert out.shape == (32, 32)
+    assert (out >= CFG.min_range_m / CFG.max_range_m - 1e-6).all() and (out <= 1.0).all()
+
+
+@pytest.mark.parametrize(
+    ("frame", "match"),
+    [
+        (np.full((240, 424), 2.0, np.float32), "uint16"),
+        (np.full((240, 424, 3), 2000, np.uint16), "2-D"),
+        (np.full((16, 16), 2000, np.uint16), "at least 32x32"),
+        (np.zeros((240, 424), np.uint16), "valid pixels"),
+    ],
+)
+def test_unusable_frames_are_rejected(frame, match):
+    """Wrong dtype, wrong shape, too small or all invalid: a clear DepthFrameError."""
+    with pytest.raises(DepthFrameError, match=match):
+        preprocess_depth_mm(frame)
