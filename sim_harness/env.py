@@ -1,0 +1,298 @@
+"""The RL environment: the paper's navigation task, vectorised in numpy, plus a Gymnasium wrapper.
+
+Step semantics are the flight semantics. At step k (0-based) the moving setpoint is
+``path.setpoint_at(k * duration_s)`` and the position input is
+``path.relative_state(setpoint, pos, yaw)`` with ``yaw`` the path heading at the quad's progress.
+The chosen primitive starts at the previous *commanded* end point with ``v0`` = the previous
+commanded end velocity (C1 joins), in the heading frame; the kinematic quad
+(:func:`sim_harness.quad.track`) follows it sampled at ``QuadParams.dt_s``; collisions are swept
+along the executed trail (:func:`sim_harness.collision.sweep_collides`); the reward is the paper's
+(:func:`quadnav_onboard.reward.reward`). An episode ends on, in this order: collision ("crash"),
+deviation past ``max_deviation_m`` ("deviation"), goal reached ("goal": within ``goal_radius_m`` of
+the goal or progress >= path length), step limit ("timeout", a truncation).
+
+:class:`VecQuadNavEnv` steps N environments at once (numpy, auto-reset optional) and is what
+training and evaluation use; :class:`QuadNavEnv` is the single-env Gymnasium view of it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+import gymnasium as gym
+import numpy as np
+import pydantic
+from numpy.typing import NDArray
+
+from quadnav_onboard.config import PrimitiveConfig
+from quadnav_onboard.frames import body_to_world, world_to_body
+from quadnav_onboard.preprocess import PreprocessConfig
+from quadnav_onboard.primitives import bezier_position, bezier_velocity
+from quadnav_onboard.reward import RewardParams, reward
+from sim_harness.collision import sweep_collides
+from sim_harness.quad import QuadParams, QuadState, track
+from sim_harness.render import render_network_inputs
+from sim_harness.world import World
+
+__all__ = ["OUTCOMES", "EnvConfig", "QuadNavEnv", "VecQuadNavEnv"]
+
+OUTCOMES = ("goal", "crash", "deviation", "timeout")
+"""Why an episode ends; ``None`` while it runs."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The navigation task (defaults: the paper's simulation settings)."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    max_steps: Annotated[int, pydantic.Field(ge=1)] = 120
+    """Step limit per episode (the paper tests with 120 one-second steps on a 60 m path)."""
+    start_jitter_m: Annotated[float, pydantic.Field(ge=0)] = 0.5
+    """Half-width (m) of the uniform random offset of the start position on each world axis."""
+    goal_radius_m: Annotated[float, pydantic.Field(gt=0)] = 1.0
+    """Distance (m) to the goal that counts as reaching it."""
+    depth_history: Annotated[int, pydantic.Field(ge=1)] = 1
+    """Depth inputs stacked in the observation (1 = the paper)."""
+    position_history: Annotated[int, pydantic.Field(ge=1)] = 1
+    """Relative positions stacked in the observation (1 = the paper)."""
+    primitives: PrimitiveConfig = field(default_factory=PrimitiveConfig)
+    """Motion primitives (scale 1 m, 1 s in simulation)."""
+    reward: RewardParams = field(default_factory=RewardParams)
+    """The paper's reward constants (deviation limit 5 m)."""
+    quad: QuadParams = field(default_factory=QuadParams)
+    """Kinematic quad: tracking response, limits, collision radius."""
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    """Depth-to-input conversion, shared with the flight daemon."""
+
+
+def _outcome_code(collided: NDArray, deviated: NDArray, goal: NDArray, timeout: NDArray) -> NDArray[np.int8]:
+    """0 = running, 1..4 = index in OUTCOMES + 1, first true reason wins in the documented order."""
+    code = np.zeros(collided.shape, dtype=np.int8)
+    code = np.where(timeout, 4, code)
+    code = np.where(goal, 1, code)
+    code = np.where(deviated, 3, code)
+    return np.where(collided, 2, code).astype(np.int8)
+
+
+class VecQuadNavEnv:
+    """N navigation episodes stepped together; worlds sampled per episode from ``worlds``.
+
+    Observations: ``depth`` float32 (N, k_d, 32, 32) in [0, 1] and ``rel_pos`` float32 (N, k_p, 3)
+    (heading frame, m), oldest first. With ``autoreset`` a finished env starts a new episode at once
+    and its last observation is in ``info["final_depth"]``/``info["final_rel_pos"]``; without it a
+    finished env stays frozen (its rows keep their last values) until :meth:`reset`.
+    All randomness (world choice, start jitter) comes from one seeded numpy Generator.
+    """
+
+    def __init__(
+        self,
+        worlds: Sequence[World],
+        n_envs: int,
+        seed: int,
+        config: EnvConfig = EnvConfig(),
+        autoreset: bool = True,
+        world_weights: Sequence[float] | None = None,
+    ) -> None:
+        if not worlds:
+            raise ValueError("VecQuadNavEnv needs at least one world")
+        if n_envs < 1:
+            raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+        self.worlds = list(worlds)
+        self.n_envs = int(n_envs)
+        self.config = config
+        self.autoreset = autoreset
+        self.prims = config.primitives.build()
+        p = None if world_weights is None else np.asarray(world_weights, dtype=np.float64)
+        self._world_p = None if p is None else p / p.sum()
+        self.rng = np.random.default_rng(seed)
+        n_sub = max(1, round(self.prims.duration_s / config.quad.dt_s))
+        self._u = (np.arange(1, n_sub + 1, dtype=np.float64) / n_sub)[:, None]  # (K, 1)
+        n, kd, kp = self.n_envs, config.depth_history, config.position_history
+        self.world_idx = np.zeros(n, dtype=np.int64)
+        self.pos_m = np.zeros((n, 3))
+        self.vel_m_s = np.zeros((n, 3))
+        self.cmd_pos_m = np.zeros((n, 3))
+        self.cmd_vel_m_s = np.zeros((n, 3))
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.episode_return = np.zeros(n)
+        self.done = np.zeros(n, dtype=bool)
+        self.depth = np.ones((n, kd, 32, 32), dtype=np.float32)
+        self.rel = np.zeros((n, kp, 3), dtype=np.float32)
+
+    # -- per-world helpers ---------------------------------------------------------------------
+    def _groups(self, mask: NDArray[np.bool_]) -> list[tuple[World, NDArray[np.int64]]]:
+        ids = np.flatnonzero(mask)
+        return [(self.worlds[w], ids[self.world_idx[ids] == w]) for w in np.unique(self.world_idx[ids])]
+
+    def _path_terms(
+        self, ids: NDArray[np.int64], world: World, pos: NDArray, k: NDArray
+    ) -> dict[str, NDArray]:
+        path = world.path
+        arc, dev = path.closest(pos)
+        yaw = path.yaw_at(arc)
+        sp = path.setpoint_at(k * self.prims.duration_s)
+        return {
+            "arc": arc,
+            "dev": dev,
+            "yaw": yaw,
+            "sp": sp,
+            "goal_dist": np.linalg.norm(path.goal_m - pos, axis=-1),
+        }
+
+    def _observe(
+        self, ids: NDArray[np.int64], world: World, yaw: NDArray, sp: NDArray
+    ) -> tuple[NDArray, NDArray]:
+        depth = render_network_inputs(world, self.pos_m[ids], yaw, self.config.preprocess)
+        rel = world.path.relative_state(sp, self.pos_m[ids], yaw).astype(np.float32)
+        return depth.astype(np.float32, copy=False), rel
+
+    # -- API -------------------------------------------------------------------------------------
+    def reset(self, mask: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Start new episodes in the envs of ``mask`` (all if None); returns the observations."""
+        mask = np.ones(self.n_envs, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+        ids = np.flatnonzero(mask)
+        if ids.size == 0:
+            return self.depth, self.rel
+        m = ids.size
+        self.world_idx[ids] = self.rng.choice(len(self.worlds), size=m, p=self._world_p)
+        jitter = self.rng.uniform(-1.0, 1.0, size=(m, 3)) * self.config.start_jitter_m
+        for w in np.unique(self.world_idx[ids]):
+            sel = ids[self.world_idx[ids] == w]
+            self.pos_m[sel] = self.worlds[w].path.start_m + jitter[self.world_idx[ids] == w]
+        self.vel_m_s[ids] = 0.0
+        self.cmd_pos_m[ids] = self.pos_m[ids]
+        self.cmd_vel_m_s[ids] = 0.0
+        self.steps[ids] = 0
+        self.episode_return[ids] = 0.0
+        self.done[ids] = False
+        for world, sel in self._groups(mask):
+            t = self._path_terms(sel, world, self.pos_m[sel], self.steps[sel])
+            depth, rel = self._observe(sel, world, t["yaw"], t["sp"])
+            self.depth[sel] = depth[:, None]
+            self.rel[sel] = rel[:, None]
+        return self.depth, self.rel
+
+    def step(self, actions: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, dict[str, Any]]:
+        """Advance every running env by one primitive.
+
+        Returns ``(depth, rel_pos, reward (N,), terminated (N,), truncated (N,), info)``; ``info``
+        holds arrays ``progress_m``, ``time_s``, ``deviation_m``, ``outcome`` (object: None or a
+        string of :data:`OUTCOMES`), ``episode_return``, ``world_index``, ``steps`` and, with
+        autoreset, ``final_depth``/``final_rel_pos``.
+        """
+        actions = np.asarray(actions, dtype=np.int64).reshape(self.n_envs)
+        run = ~self.done
+        cfg, prims = self.config, self.prims
+        n = self.n_envs
+        rew = np.zeros(n)
+        code = np.zeros(n, dtype=np.int8)
+        progress = np.zeros(n)
+        deviation = np.zeros(n)
+        for world, ids in self._groups(run):
+            path = world.path
+            k = self.steps[ids]
+            pos0 = self.pos_m[ids]
+            arc0 = path.progress_m(pos0)
+            yaw = path.yaw_at(arc0)
+            d_prev = np.linalg.norm(path.setpoint_at(k * prims.duration_s) - pos0, axis=-1)
+            # the primitive, in the heading frame, from the last commanded end point (C1)
+            v0_h = world_to_body(self.cmd_vel_m_s[ids], yaw)
+            ctrl = prims.control_points(actions[ids], v0_h)  # (m, 4, 3)
+            disp_h = bezier_position(ctrl, self._u)  # (K, m, 3)
+            vel_h = bezier_velocity(ctrl, self._u, prims.duration_s)
+            targets = self.cmd_pos_m[ids] + body_to_world(disp_h, yaw)
+            target_vel = body_to_world(vel_h, yaw)
+            state, trail = track(QuadState(pos0, self.vel_m_s[ids]), targets, target_vel, cfg.quad)
+            self.pos_m[ids] = state.pos_m
+            self.vel_m_s[ids] = state.vel_m_s
+            self.cmd_pos_m[ids] = targets[-1]
+            self.cmd_vel_m_s[ids] = target_vel[-1]
+            self.steps[ids] = k + 1
+            collided = sweep_collides(world, trail, cfg.quad.radius_m)
+            t = self._path_terms(ids, world, state.pos_m, k + 1)
+            d_now = np.linalg.norm(t["sp"] - state.pos_m, axis=-1)
+            deviated = t["dev"] > cfg.reward.max_deviation_m
+            goal = (t["goal_dist"] <= cfg.goal_radius_m) | (t["arc"] >= path.length_m - 1e-9)
+            timeout = (k + 1) >= cfg.max_steps
+            code[ids] = _outcome_code(collided, deviated, goal, timeout)
+            rew[ids] = reward(d_prev, d_now, deviated, collided, cfg.reward)
+            progress[ids] = t["arc"]
+            deviation[ids] = t["dev"]
+            depth, rel = self._observe(ids, world, t["yaw"], t["sp"])
+            self.depth[ids] = np.concatenate([self.depth[ids, 1:], depth[:, None]], axis=1)
+            self.rel[ids] = np.concatenate([self.rel[ids, 1:], rel[:, None]], axis=1)
+        self.episode_return[run] += rew[run]
+        terminated = run & (code >= 1) & (code <= 3)
+        truncated = run & (code == 4)
+        ended = terminated | truncated
+        outcome = np.array([None if c == 0 else OUTCOMES[c - 1] for c in code], dtype=object)
+        info: dict[str, Any] = {
+            "progress_m": progress,
+            "time_s": self.steps * prims.duration_s,
+            "deviation_m": deviation,
+            "outcome": outcome,
+            "episode_return": self.episode_return.copy(),
+            "world_index": self.world_idx.copy(),
+            "steps": self.steps.copy(),
+        }
+        self.done |= ended
+        if self.autoreset:
+            info["final_depth"] = self.depth.copy()
+            info["final_rel_pos"] = self.rel.copy()
+            if ended.any():
+                self.reset(ended)
+        return self.depth, self.rel, rew, terminated, truncated, info
+
+
+class QuadNavEnv(gym.Env):
+    """Single-episode Gymnasium view of :class:`VecQuadNavEnv`.
+
+    Observation ``Dict(depth=Box(0, 1, (k_d, 32, 32)), rel_pos=Box((k_p, 3)))``, action
+    ``Discrete(n_actions)``; ``info``: ``progress_m`` (navigation distance), ``time_s``,
+    ``deviation_m``, ``outcome`` and ``world_index``. ``reset(seed=s)`` re-seeds the Generator, so
+    a seeded episode with the same actions is reproducible bit for bit.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, worlds: Sequence[World], config: EnvConfig = EnvConfig(), seed: int = 0) -> None:
+        super().__init__()
+        self.config = config
+        self._worlds = list(worlds)
+        self._vec = VecQuadNavEnv(self._worlds, 1, seed, config, autoreset=False)
+        kd, kp = config.depth_history, config.position_history
+        self.observation_space = gym.spaces.Dict(
+            {
+                "depth": gym.spaces.Box(0.0, 1.0, (kd, 32, 32), dtype=np.float32),
+                "rel_pos": gym.spaces.Box(-np.inf, np.inf, (kp, 3), dtype=np.float32),
+            }
+        )
+        self.action_space = gym.spaces.Discrete(self._vec.prims.n_actions)
+
+    def _obs(self) -> dict[str, NDArray[np.float32]]:
+        return {"depth": self._vec.depth[0].copy(), "rel_pos": self._vec.rel[0].copy()}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self._vec.rng = np.random.default_rng(seed)
+        self._vec.reset()
+        v = self._vec
+        info = {"progress_m": 0.0, "time_s": 0.0, "outcome": None, "world_index": int(v.world_idx[0])}
+        return self._obs(), info
+
+    def step(self, action: int) -> tuple[dict, float, bool, bool, dict]:
+        if self._vec.done[0]:
+            raise RuntimeError("step() after the episode ended: call reset()")
+        _, _, rew, term, trunc, info = self._vec.step(np.array([int(action)]))
+        out = {
+            "progress_m": float(info["progress_m"][0]),
+            "time_s": float(info["time_s"][0]),
+            "deviation_m": float(info["deviation_m"][0]),
+            "outcome": info["outcome"][0],
+            "world_index": int(info["world_index"][0]),
+        }
+        return self._obs(), float(rew[0]), bool(term[0]), bool(trunc[0]), out

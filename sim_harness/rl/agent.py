@@ -1,0 +1,111 @@
+"""The DQN learner: online and target Q-networks, Huber loss, Adam, ε-greedy acting.
+
+Options beyond the paper (all off by default): Double DQN targets, a dueling head (in the network
+config), n-step returns (the buffer supplies ``n``; the target bootstraps with ``γ**n``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from numpy.typing import NDArray
+
+from quadnav_onboard.network import DQN, NetworkConfig
+from sim_harness.rl.replay import Batch
+
+__all__ = ["AgentConfig", "DQNAgent"]
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Learner settings."""
+
+    learning_rate: float = 1e-3
+    """Adam step size (the paper: PyTorch's default, 1e-3)."""
+    double_dqn: bool = False
+    """Double DQN targets: the online net picks a', the target net evaluates it."""
+    target_update_interval: int = 250
+    """Gradient updates between hard copies of the online net into the target net."""
+    max_grad_norm: float = 10.0
+    """Gradient norm clip (0 = off)."""
+
+
+class DQNAgent:
+    """Online/target networks and their optimiser; ``torch`` seeded by the caller."""
+
+    def __init__(self, network: NetworkConfig, config: AgentConfig = AgentConfig()) -> None:
+        self.config = config
+        self.q = DQN(network)
+        self.target = DQN(network)
+        self.target.load_state_dict(self.q.state_dict())
+        self.target.eval()
+        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
+        self.n_updates = 0
+
+    def greedy(self, depth: NDArray[np.float32], rel: NDArray[np.float32]) -> NDArray[np.int64]:
+        """Arg-max actions (B,) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3)."""
+        with torch.inference_mode():
+            q = self.q(torch.as_tensor(depth, dtype=torch.float32), torch.as_tensor(rel, dtype=torch.float32))
+        return q.argmax(dim=1).numpy().astype(np.int64)
+
+    def act(
+        self,
+        depth: NDArray[np.float32],
+        rel: NDArray[np.float32],
+        epsilon: NDArray | float,
+        rng: np.random.Generator,
+    ) -> NDArray[np.int64]:
+        """ε-greedy actions (B,); ``epsilon`` scalar or per row; randomness from ``rng``."""
+        n = depth.shape[0]
+        actions = self.greedy(depth, rel)
+        explore = rng.random(n) < np.broadcast_to(np.asarray(epsilon, dtype=np.float64), (n,))
+        random_actions = rng.integers(0, self.q.config.n_actions, size=n)
+        return np.where(explore, random_actions, actions).astype(np.int64)
+
+    def update(self, batch: Batch, gamma: float) -> float:
+        """One gradient step of the Huber TD loss; returns the loss value."""
+        depth = torch.as_tensor(batch.depth)
+        rel = torch.as_tensor(batch.rel)
+        next_depth = torch.as_tensor(batch.next_depth)
+        next_rel = torch.as_tensor(batch.next_rel)
+        action = torch.as_tensor(batch.action)
+        reward = torch.as_tensor(batch.reward)
+        done = torch.as_tensor(batch.done)
+        discount = torch.as_tensor(np.power(gamma, batch.n, dtype=np.float32))
+        with torch.no_grad():
+            q_next_target = self.target(next_depth, next_rel)
+            if self.config.double_dqn:
+                a_next = self.q(next_depth, next_rel).argmax(dim=1, keepdim=True)
+                v_next = q_next_target.gather(1, a_next).squeeze(1)
+            else:
+                v_next = q_next_target.max(dim=1).values
+            target = reward + discount * (1.0 - done) * v_next
+        q_sa = self.q(depth, rel).gather(1, action[:, None]).squeeze(1)
+        loss = F.smooth_l1_loss(q_sa, target)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.config.max_grad_norm > 0:
+            torch.nn.utils.clip_grad_norm_(self.q.parameters(), self.config.max_grad_norm)
+        self.optimizer.step()
+        self.n_updates += 1
+        if self.n_updates % self.config.target_update_interval == 0:
+            self.target.load_state_dict(self.q.state_dict())
+        return float(loss.item())
+
+    def state_dict(self) -> dict:
+        """Everything needed to resume learning (weights, target, optimiser, update count)."""
+        return {
+            "q": self.q.state_dict(),
+            "target": self.target.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "n_updates": self.n_updates,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.q.load_state_dict(state["q"])
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.n_updates = int(state["n_updates"])

@@ -1,0 +1,159 @@
+"""The training configuration (one frozen, typed dataclass; a docstring per field) and its CLI flags.
+
+CleanRL style: every field becomes a ``--flag`` whose help text is the field's docstring, so the
+config, the command line and the run directory's ``config.json`` say the same thing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import itertools
+import json
+import typing
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Annotated, Any
+
+import pydantic
+
+from quadnav_onboard.config import ConfigError, parse_config
+
+__all__ = [
+    "TrainConfig",
+    "add_dataclass_flags",
+    "config_from_args",
+    "field_docs",
+    "load_train_config",
+    "read_config_file",
+]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """DQN training per the paper, with the options beyond it (all off by default)."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    name: str = "paper"
+    """Experiment name: the first part of the run directory name."""
+    seed: int = 0
+    """Seed of every RNG (numpy env/replay/exploration generators and torch)."""
+    episodes: Annotated[int, pydantic.Field(ge=1)] = 2000
+    """Training episodes (the paper: 2000); the schedules are indexed by episode."""
+    train_worlds: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7)
+    """Paper world ids visited at random during training (never 8-10: they are held out)."""
+    n_envs: Annotated[int, pydantic.Field(ge=1)] = 16
+    """Environments stepped together (vectorised numpy)."""
+    max_steps: Annotated[int, pydantic.Field(ge=1)] = 120
+    """Step limit per training episode."""
+    start_jitter_m: Annotated[float, pydantic.Field(ge=0)] = 0.5
+    """Half-width (m) of the random start offset per axis."""
+    eps_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 1.0
+    """ε at episode 0."""
+    eps_end: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.1
+    """ε from the end of the ramp on."""
+    gamma_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.01
+    """Discount γ at episode 0 (the paper grows γ)."""
+    gamma_end: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.99
+    """Discount γ from the end of the ramp on."""
+    schedule_fraction: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.8
+    """Fraction of the episodes over which ε and γ ramp linearly; flat afterwards."""
+    learning_rate: Annotated[float, pydantic.Field(gt=0)] = 1e-3
+    """Adam step size (PyTorch's default, as in the paper)."""
+    batch_size: Annotated[int, pydantic.Field(ge=1)] = 64
+    """Minibatch size of one gradient update."""
+    buffer_size: Annotated[int, pydantic.Field(ge=1)] = 50_000
+    """Replay capacity (transitions)."""
+    learning_starts: Annotated[int, pydantic.Field(ge=1)] = 1_000
+    """Transitions stored before the first update."""
+    updates_per_step: Annotated[float, pydantic.Field(gt=0)] = 2.0
+    """Gradient updates per vectorised step (of n_envs transitions); fractions accumulate."""
+    target_update_interval: Annotated[int, pydantic.Field(ge=1)] = 250
+    """Updates between hard target-network copies."""
+    max_grad_norm: Annotated[float, pydantic.Field(ge=0)] = 10.0
+    """Gradient norm clip (0 = off)."""
+    double_dqn: bool = False
+    """Double DQN targets (beyond the paper)."""
+    dueling: bool = False
+    """Dueling value/advantage head (beyond the paper)."""
+    n_step: Annotated[int, pydantic.Field(ge=1)] = 1
+    """n-step returns (1 = the paper)."""
+    depth_history: Annotated[int, pydantic.Field(ge=1)] = 1
+    """Depth frames stacked as input (1 = the paper)."""
+    position_history: Annotated[int, pydantic.Field(ge=1)] = 1
+    """Relative positions stacked as input (1 = the paper)."""
+    checkpoint_every: Annotated[int, pydantic.Field(ge=1)] = 100
+    """Episodes between checkpoints (model + resumable training state)."""
+    torch_threads: Annotated[int, pydantic.Field(ge=1)] = 2
+    """torch.set_num_threads."""
+    out_dir: str = "runs"
+    """Parent folder of run directories."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+
+def load_train_config(mapping: Any, source: str) -> TrainConfig:
+    """Validate a mapping (e.g. a run's config.json) into a :class:`TrainConfig`."""
+    cfg = parse_config(TrainConfig, mapping, source)
+    bad = [w for w in cfg.train_worlds if w not in range(1, 11)]
+    if bad:
+        raise ConfigError(f"{source}: key 'train_worlds': bad value {bad!r}: paper worlds are 1..10")
+    return cfg
+
+
+@cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each dataclass field (read from the class source)."""
+    tree = ast.parse(inspect.getsource(cls))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs: dict[str, str] = {}
+    for prev, node in itertools.pairwise(body):
+        if (
+            isinstance(prev, ast.AnnAssign)
+            and isinstance(prev.target, ast.Name)
+            and isinstance(node, ast.Expr)
+            and isinstance(node.value, ast.Constant)
+            and isinstance(node.value.value, str)
+        ):
+            docs[prev.target.id] = node.value.value.strip()
+    return docs
+
+
+def add_dataclass_flags(parser: argparse.ArgumentParser, cls: type) -> None:
+    """One ``--flag`` per field of ``cls`` (default: None = keep the config's value)."""
+    hints = typing.get_type_hints(cls)
+    docs = field_docs(cls)
+    for f in dataclasses.fields(cls):
+        flag = "--" + f.name.replace("_", "-")
+        tp = hints[f.name]
+        default = f.default
+        help_text = f"{docs.get(f.name, '')} (default: {default})".replace("%", "%%")
+        if tp is bool:
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        elif typing.get_origin(tp) is tuple:
+            parser.add_argument(flag, type=int, nargs="+", default=None, help=help_text)
+        else:
+            parser.add_argument(flag, type=tp, default=None, help=help_text)
+
+
+def config_from_args(args: argparse.Namespace, base: dict[str, Any] | None = None) -> TrainConfig:
+    """A validated :class:`TrainConfig` from parsed flags over ``base`` (a dict of fields)."""
+    data = dict(base or {})
+    for f in dataclasses.fields(TrainConfig):
+        value = getattr(args, f.name, None)
+        if value is not None:
+            data[f.name] = value
+    return load_train_config(data, source="command line")
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """A run's ``config.json`` as a dict (errors name the file)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the run config: {exc}") from exc

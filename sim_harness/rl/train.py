@@ -1,0 +1,211 @@
+"""The DQN training loop (pure orchestration: env, agent, replay, schedules, run directory).
+
+``train(config)`` runs the paper's recipe: vectorised envs over the training worlds, ε-greedy
+acting with an ε fixed per episode from the episode schedule, γ from the episode schedule at each
+update, Huber loss + Adam, a target network, uniform replay. Episodes are the unit: it stops when
+``config.episodes`` episodes have finished. ``train(resume=RUN_DIR)`` continues a killed run from its
+last checkpoint (networks, optimiser, counters, RNG states, metrics); the replay buffer is not saved,
+so it refills to ``learning_starts`` before updates resume.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from quadnav_onboard.checkpoint import save_checkpoint
+from quadnav_onboard.network import NetworkConfig
+from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.rl.agent import AgentConfig, DQNAgent
+from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
+from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
+from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
+from sim_harness.rl.schedules import LinearSchedule
+from sim_harness.world import load_world, paper_world_path
+
+__all__ = ["TrainResult", "env_config_for", "network_config_for", "train"]
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What a finished run produced, and how fast."""
+
+    run_dir: Path
+    model_path: Path
+    episodes: int
+    env_steps: int
+    updates: int
+    wall_s: float
+
+    @property
+    def env_steps_per_s(self) -> float:
+        return self.env_steps / max(self.wall_s, 1e-9)
+
+    @property
+    def updates_per_s(self) -> float:
+        return self.updates / max(self.wall_s, 1e-9)
+
+
+def env_config_for(cfg: TrainConfig) -> EnvConfig:
+    return EnvConfig(
+        max_steps=cfg.max_steps,
+        start_jitter_m=cfg.start_jitter_m,
+        depth_history=cfg.depth_history,
+        position_history=cfg.position_history,
+    )
+
+
+def network_config_for(cfg: TrainConfig) -> NetworkConfig:
+    return NetworkConfig(
+        n_actions=18,
+        depth_history=cfg.depth_history,
+        position_history=cfg.position_history,
+        dueling=cfg.dueling,
+    )
+
+
+def _save_model(path: Path, agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, extra: dict) -> Path:
+    meta = {"train_config": cfg.to_dict(), "seed": cfg.seed, "git_commit": git_commit(), **extra}
+    return save_checkpoint(
+        path,
+        agent.q,
+        primitives=json.loads(json.dumps(dataclasses.asdict(env_cfg.primitives))),
+        preprocess=dataclasses.asdict(env_cfg.preprocess),
+        meta=meta,
+    )
+
+
+def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:
+    return {k: v.bit_generator.state for k, v in rngs.items()}
+
+
+def train(
+    config: TrainConfig | None = None, *, resume: str | Path | None = None, progress: bool = True
+) -> TrainResult:
+    """Train (or resume) one run; returns its directory, final model and throughput figures."""
+    if resume is not None:
+        run_dir = Path(resume)
+        cfg = load_train_config(read_config_file(run_dir / "config.json"), str(run_dir / "config.json"))
+    else:
+        cfg = config or TrainConfig()
+        run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
+        (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
+    torch.set_num_threads(cfg.torch_threads)
+    torch.manual_seed(cfg.seed)
+    env_cfg = env_config_for(cfg)
+    worlds = [load_world(paper_world_path(i)) for i in cfg.train_worlds]
+    env = VecQuadNavEnv(worlds, cfg.n_envs, seed=cfg.seed, config=env_cfg)
+    agent = DQNAgent(
+        network_config_for(cfg),
+        AgentConfig(cfg.learning_rate, cfg.double_dqn, cfg.target_update_interval, cfg.max_grad_norm),
+    )
+    kd, kp = cfg.depth_history, cfg.position_history
+    buffer = ReplayBuffer(cfg.buffer_size, (kd, 32, 32), (kp, 3), seed=cfg.seed + 1)
+    act_rng = np.random.default_rng(cfg.seed + 2)
+    nstep = NStepAccumulator(cfg.n_envs, cfg.n_step)
+    eps_of = LinearSchedule(cfg.eps_start, cfg.eps_end, cfg.episodes, cfg.schedule_fraction)
+    gamma_of = LinearSchedule(cfg.gamma_start, cfg.gamma_end, cfg.episodes, cfg.schedule_fraction)
+
+    rows: list[dict[str, Any]] = []
+    env_steps, wall_before = 0, 0.0
+    if resume is not None and (run_dir / "state.json").is_file():
+        state = json.loads((run_dir / "state.json").read_text(encoding="utf-8"))
+        tstate = torch.load(run_dir / "state.pt", map_location="cpu", weights_only=True)
+        agent.load_state_dict(tstate["agent"])
+        torch.set_rng_state(tstate["torch_rng"])
+        env.rng.bit_generator.state = state["rng"]["env"]
+        buffer.rng.bit_generator.state = state["rng"]["buffer"]
+        act_rng.bit_generator.state = state["rng"]["act"]
+        env_steps, wall_before = int(state["env_steps"]), float(state["wall_s"])
+        rows = read_metrics(run_dir)[: int(state["episodes"])]
+    finished = len(rows)
+    started = finished + cfg.n_envs
+    env_episode = finished + np.arange(cfg.n_envs)
+    depth, rel = env.reset()
+    losses: list[float] = []
+    update_credit = 0.0
+    t0 = time.monotonic() - wall_before
+    bar = tqdm(total=cfg.episodes, initial=finished, desc=cfg.name, disable=not progress, unit="ep")
+
+    def checkpoint(final: bool = False) -> Path:
+        extra = {"episodes": finished, "env_steps": env_steps, "env": _env_meta(env_cfg)}
+        model = _save_model(run_dir / "checkpoints" / "latest.pt", agent, cfg, env_cfg, extra)
+        torch.save(
+            {"agent": agent.state_dict(), "torch_rng": torch.get_rng_state()}, run_dir / "state.pt.tmp"
+        )
+        (run_dir / "state.pt.tmp").replace(run_dir / "state.pt")
+        state = {
+            "episodes": finished,
+            "env_steps": env_steps,
+            "wall_s": time.monotonic() - t0,
+            "rng": _rng_states(env=env.rng, buffer=buffer.rng, act=act_rng),
+        }
+        (run_dir / "state.json.tmp").write_text(json.dumps(state), encoding="utf-8")
+        (run_dir / "state.json.tmp").replace(run_dir / "state.json")
+        write_metrics(run_dir, rows)
+        if final:
+            model = _save_model(run_dir / "checkpoints" / "final.pt", agent, cfg, env_cfg, extra)
+            plot_reward_curve(rows, run_dir / "reward_curve.png", f"{run_dir.name}")
+        return model
+
+    while finished < cfg.episodes:
+        gamma = gamma_of(finished)
+        eps = np.array([eps_of(e) for e in env_episode])
+        actions = agent.act(depth, rel, eps, act_rng)
+        prev_depth, prev_rel = depth.copy(), rel.copy()
+        depth, rel, rew, term, trunc, info = env.step(actions)
+        ended = term | trunc
+        next_depth = np.where(ended[:, None, None, None], info["final_depth"], depth)
+        next_rel = np.where(ended[:, None, None], info["final_rel_pos"], rel)
+        trans = nstep.push(prev_depth, prev_rel, actions, rew, next_depth, next_rel, term, trunc, gamma)
+        if trans:
+            buffer.add(**trans)
+        env_steps += cfg.n_envs
+        if len(buffer) >= cfg.learning_starts:
+            update_credit += cfg.updates_per_step
+            while update_credit >= 1.0:
+                losses.append(agent.update(buffer.sample(cfg.batch_size), gamma))
+                update_credit -= 1.0
+        for i in np.flatnonzero(ended):
+            if finished >= cfg.episodes:
+                break
+            rows.append(
+                {
+                    "episode": finished,
+                    "world": cfg.train_worlds[int(info["world_index"][i])],
+                    "reward": round(float(info["episode_return"][i]), 6),
+                    "length": int(info["steps"][i]),
+                    "outcome": str(info["outcome"][i]),
+                    "progress_m": round(float(info["progress_m"][i]), 3),
+                    "epsilon": round(float(eps[i]), 6),
+                    "gamma": round(gamma, 6),
+                    "loss": round(float(np.mean(losses)), 6) if losses else float("nan"),
+                    "env_steps": env_steps,
+                    "wall_s": round(time.monotonic() - t0, 3),
+                }
+            )
+            losses.clear()
+            finished += 1
+            env_episode[i] = started
+            started += 1
+            bar.update(1)
+            bar.set_postfix(reward=f"{rows[-1]['reward']:.2f}", eps=f"{eps[i]:.2f}", refresh=False)
+            if finished % cfg.checkpoint_every == 0 and finished < cfg.episodes:
+                checkpoint()
+    bar.close()
+    model_path = checkpoint(final=True)
+    final_path = run_dir / "checkpoints" / "final.pt"
+    wall = time.monotonic() - t0
+    del model_path
+    return TrainResult(run_dir, final_path, finished, env_steps, agent.n_updates, wall)
+
+
+def _env_meta(env_cfg: EnvConfig) -> dict[str, Any]:
+    return json.loads(json.dumps(dataclasses.asdict(env_cfg)))
