@@ -1,0 +1,196 @@
+"""The flight recorder: what goes in comes back out, it never blocks, and it sheds depth first."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from quadnav_onboard.record import FlightRecorder, NullRecorder, RecorderError, RecordError, read_record
+from quadnav_onboard.record.schemas import SCHEMAS, TOPICS
+
+
+def _fill(rec: FlightRecorder, n: int = 10, t0: float = 50.0) -> None:
+    rec.rough_path(t0, [[0, 0, 2], [20, 0, 2]])
+    for k in range(n):
+        t = t0 + k
+        rec.depth(t, np.full((24, 32), 1000 + k, np.uint16))
+        rec.network_input(t, k, np.full((32, 32), k / 100, np.float32))
+        rec.odometry(t, [k, 0.5, 2.0], [1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+        rec.setpoint(t, [k + 1, 0.0, 2.0], [1.0, 0.0, 0.0], 0.1 * k)
+        rec.step(
+            t,
+            step=k,
+            action=k % 18,
+            q_values=np.linspace(0, 1, 18) + k,
+            rel_pos_body_m=[1.0, -0.5, 0.0],
+            moving_setpoint_world_m=[k + 1, 0, 2],
+            pos_world_m=[k, 0.5, 2.0],
+            reward=0.25,
+            reward_terms={"d_now_m": 1.1, "collided": False},
+            progress_m=float(k),
+            deviation_m=0.5,
+            latency_ms=20.0 + k,
+        )
+        rec.vehicle(t, True, "OFFBOARD", {"gyro_ok": True})
+    rec.event(t0 + 3.5, "failsafe", "link lost", level="warning", duration_s=0.5)
+
+
+def test_everything_recorded_comes_back(tmp_path):
+    """Each recorder method's data is read back with the values, units and times it was given."""
+    path = tmp_path / "f.mcap"
+    with FlightRecorder(path, metadata={"world": "env01", "model_sha256": "ab"}, depth_decimation=3) as rec:
+        _fill(rec)
+        rec.close("goal_reached", {"navigation_distance_m": 9.0}, t_mono_s=60.0)
+    r = read_record(path)
+    assert r.complete and r.problem is None
+    assert r.info == {"world": "env01", "model_sha256": "ab"}
+    assert [s["step"] for s in r.steps] == list(range(10))
+    np.testing.assert_allclose(r.step_array("q_values")[4], np.linspace(0, 1, 18) + 4)
+    np.testing.assert_allclose(r.step_array("pos_world_m")[3], [3, 0.5, 2])
+    np.testing.assert_allclose(r.step_array("latency_ms"), 20.0 + np.arange(10))
+    assert r.steps[2]["reward_terms"] == {"d_now_m": 1.1, "collided": False}
+    np.testing.assert_allclose(r.step_t_s, 50.0 + np.arange(10))
+    np.testing.assert_allclose(r.odom_pos_world_m[:, 0], np.arange(10))
+    np.testing.assert_allclose(r.setpoint_yaw_rad, 0.1 * np.arange(10))
+    assert [s for _, s, _ in r.network_inputs] == list(range(10))
+    assert r.network_inputs[7][2].dtype == np.float32 and r.network_inputs[7][2][0, 0] == pytest.approx(0.07)
+    # depth decimation 3 keeps frames 0, 3, 6, 9, exactly as given
+    assert [int(img[0, 0]) for _, img in r.depth] == [1000, 1003, 1006, 1009]
+    assert r.depth[1][1].dtype == np.uint16 and r.depth[1][1].shape == (24, 32)
+    assert r.vehicle[0]["mode"] == "OFFBOARD" and r.vehicle[0]["armed"] is True
+    assert r.events[0]["kind"] == "failsafe" and r.events[0]["level"] == 3
+    assert r.events[0]["fields"] == {"duration_s": 0.5}
+    np.testing.assert_allclose(r.path_waypoints_m, [[0, 0, 2], [20, 0, 2]])
+    assert r.stop["stop_reason"] == "goal_reached" and r.stop["t_mono_s"] == pytest.approx(60.0)
+    assert r.stop["summary"] == {"navigation_distance_m": 9.0}
+
+
+def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path):
+    """The stock mcap reader opens the record, CRCs hold, and topics carry Foxglove schema names."""
+    path = tmp_path / "f.mcap"
+    with FlightRecorder(path, metadata={}) as rec:
+        _fill(rec, n=3)
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        n = sum(1 for _ in reader.iter_messages())
+    assert topics == TOPICS
+    assert topics["/camera/depth"] == "foxglove.RawImage" and topics["/events"] == "foxglove.Log"
+    assert set(SCHEMAS) >= set(topics.values())
+    assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+    assert n == summary.statistics.message_count > 0
+
+
+def _stall_writer(rec: FlightRecorder) -> tuple[threading.Event, threading.Event]:
+    """Make the writer thread block inside its first write until released."""
+    entered, release = threading.Event(), threading.Event()
+    real = rec._write
+
+    def slow(kind, t, payload):
+        entered.set()
+        release.wait(timeout=30)
+        real(kind, t, payload)
+
+    rec._write = slow  # type: ignore[method-assign]
+    return entered, release
+
+
+def test_stalled_writer_drops_depth_first_and_keeps_all_control_data(tmp_path):
+    """Disk stalled: calls still return; depth frames are dropped and counted, control data is not."""
+    rec = FlightRecorder(
+        tmp_path / "f.mcap", metadata={}, depth_decimation=1, queue_size=1000, image_queue_size=4
+    )
+    entered, release = _stall_writer(rec)
+    rec.event(1.0, "first", "blocks the writer")
+    assert entered.wait(timeout=10)
+    for k in range(50):
+        rec.depth(1.0 + k, np.zeros((8, 8), np.uint16))
+        rec.vehicle(1.0 + k, True, "OFFBOARD", {})
+    assert rec.drop_counts["depth"] == 46 and rec.drop_counts["control"] == 0
+    release.set()
+    rec.close("operator_stop", {})
+    r = read_record(tmp_path / "f.mcap")
+    assert len(r.vehicle) == 50 and len(r.depth) == 4
+    assert r.stop["dropped"]["depth"] == 46
+
+
+def test_control_data_is_dropped_only_when_its_queue_is_full(tmp_path):
+    """A writer stalled past ``queue_size`` control messages drops the excess and counts it apart."""
+    rec = FlightRecorder(tmp_path / "f.mcap", metadata={}, queue_size=10)
+    entered, release = _stall_writer(rec)
+    rec.event(1.0, "first", "blocks the writer")
+    assert entered.wait(timeout=10)
+    for k in range(25):
+        rec.event(2.0 + k, "e", str(k))
+    assert rec.drop_counts["control"] == 15 and rec.dropped == 15
+    release.set()
+    rec.close("operator_stop", {})
+    assert len(read_record(tmp_path / "f.mcap").events) == 11
+
+
+def test_write_error_is_contained(tmp_path):
+    """A failing disk never raises into the caller: the error is kept and later calls are counted."""
+    rec = FlightRecorder(tmp_path / "f.mcap", metadata={})
+
+    def broken(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    rec._writer.add_message = broken  # type: ignore[method-assign]
+    rec.event(1.0, "x", "y")
+    rec.close("crash", {})  # waits for the writer, which failed
+    assert isinstance(rec.error, OSError)
+    rec.event(2.0, "x", "after")
+    assert rec.drop_counts["failed"] >= 1
+
+
+def test_bad_input_is_counted_not_raised(tmp_path):
+    """A NaN time or a wrong-shaped image is dropped as invalid; the rest of the record is intact."""
+    with FlightRecorder(tmp_path / "f.mcap", metadata={}, depth_decimation=1) as rec:
+        rec.event(float("nan"), "x", "nan time")
+        rec.depth(1.0, np.zeros((2, 3, 4), np.uint16))
+        rec.event(2.0, "ok", "kept")
+        rec.close("operator_stop", {})
+        assert rec.drop_counts["invalid"] == 2
+    r = read_record(tmp_path / "f.mcap")
+    assert [e["kind"] for e in r.events] == ["ok"]
+
+
+def test_unwritable_path_is_a_clear_error(tmp_path):
+    """A record that cannot be created raises RecorderError naming the path."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(RecorderError, match="cannot create flight record") as err:
+        FlightRecorder(blocker / "sub" / "f.mcap", metadata={})
+    assert str(blocker) in str(err.value)
+
+
+def test_null_recorder_has_the_recorders_methods():
+    """NullRecorder can stand in for FlightRecorder: every public method exists and does nothing."""
+    public = {n for n in dir(FlightRecorder) if not n.startswith("_")} - {"error"}
+    missing = {n for n in public if not hasattr(NullRecorder, n)}
+    assert not missing
+    NullRecorder().close("x", {})
+
+
+def test_other_mcap_files_are_refused(tmp_path):
+    """An MCAP file that is not a quadnav record, a text file and a folder are refused with one line."""
+    other = tmp_path / "other.mcap"
+    with open(other, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        cid = w.register_channel("/x", "json", sid)
+        w.add_message(cid, log_time=1, data=b"{}", publish_time=1)
+        w.finish()
+    with pytest.raises(RecordError, match="not a quadnav flight record"):
+        read_record(other)
+    (tmp_path / "t.mcap").write_text("hello")
+    with pytest.raises(RecordError, match="not an MCAP file"):
+        read_record(tmp_path / "t.mcap")
+    with pytest.raises(RecordError, match="not a regular file"):
+        read_record(tmp_path)
