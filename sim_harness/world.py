@@ -1,0 +1,347 @@
+"""Worlds: a rough path, a floor and a ceiling, and obstacles (boxes, spheres, cylinders).
+
+A world is read from a YAML file with this contract (world frame: x forward, y left, z up; metres)::
+
+    name: env04-slalom-lr            # required
+    description: free text           # optional
+    path:
+      waypoints: [[0, 0, 2], [60, 0, 2]]
+      speed_m_s: 1.0                 # optional, default 1.0
+    bounds: {floor_z: 0.0, ceiling_z: 8.0}   # optional; floor and ceiling are solid
+    obstacles:                       # optional list; `center` is each shape's geometric centre
+      - {type: box, center: [10, 1.5, 2], size: [1, 3, 4], yaw_deg: 0}
+      - {type: sphere, center: [50, 0, 2], radius: 1.2}
+      - {type: cylinder, center: [20, -1, 2.5], radius: 0.5, height: 5, axis: z}   # axis x|y|z
+
+A bad file raises :class:`WorldError` naming the file, the entry (``obstacles[3]``) and the reason.
+Every world also carries :class:`Geometry`, the obstacles packed into arrays for the ray caster
+(:mod:`sim_harness.render`) and the collision checker (:mod:`sim_harness.collision`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from quadnav_onboard.config import ConfigError, load_yaml
+from quadnav_onboard.path import RoughPath
+
+__all__ = [
+    "TEST_WORLD_IDS",
+    "TRAIN_WORLD_IDS",
+    "WORLDS_DIR",
+    "Box",
+    "Cylinder",
+    "Geometry",
+    "Obstacle",
+    "Sphere",
+    "World",
+    "WorldError",
+    "load_world",
+    "paper_world_path",
+    "parse_world",
+    "resolve_world_arg",
+    "world_to_mapping",
+]
+
+WORLDS_DIR = Path(__file__).resolve().parent / "worlds"
+TRAIN_WORLD_IDS = (1, 2, 3, 4, 5, 6, 7)
+TEST_WORLD_IDS = (8, 9, 10)
+
+# Shape codes in Geometry.kind.
+KIND_BOX, KIND_SPHERE, KIND_CYLINDER = 0, 1, 2
+Vec3 = tuple[float, float, float]
+
+
+class WorldError(ValueError):
+    """A world file that cannot be used; the message names the file, the entry and the reason."""
+
+
+@dataclass(frozen=True)
+class Box:
+    """A box: geometric centre (world, m), full size (m) along its own x/y/z, yaw (deg) about world z."""
+
+    center_m: Vec3
+    size_m: Vec3
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A sphere: centre (world, m) and radius (m)."""
+
+    center_m: Vec3
+    radius_m: float
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A capped cylinder: geometric centre (world, m), radius (m), height (m) along ``axis``."""
+
+    center_m: Vec3
+    radius_m: float
+    height_m: float
+    axis: Literal["x", "y", "z"] = "z"
+
+
+Obstacle = Box | Sphere | Cylinder
+
+# Local frame (columns = local axes in world) of a cylinder whose local z is the given world axis.
+_AXIS_FRAMES = {
+    "z": np.eye(3),
+    "x": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),  # local (x,y,z) = world (y,z,x)
+    "y": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),  # local (x,y,z) = world (z,x,y)
+}
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Obstacles packed for vectorised kernels; M obstacles, all arrays read-only.
+
+    A point ``p`` (world) is ``rot_m[i].T @ (p - center_m[i])`` in obstacle i's local frame, where
+    a box spans ``±half_m``, a sphere has radius ``half_m[0]``, and a cylinder has radius
+    ``half_m[0]`` and spans ``±half_m[2]`` along local z.
+    """
+
+    kind: NDArray[np.int64]
+    """Shape code per obstacle (0 box, 1 sphere, 2 cylinder), shape (M,)."""
+    center_m: NDArray[np.float64]
+    """Geometric centres (world, m), shape (M, 3)."""
+    rot_m: NDArray[np.float64]
+    """Local-to-world rotations, shape (M, 3, 3)."""
+    half_m: NDArray[np.float64]
+    """Half extents in the local frame (m), shape (M, 3)."""
+    bound_r_m: NDArray[np.float64]
+    """Radius (m) of a sphere about the centre that encloses the shape, shape (M,)."""
+    floor_z_m: float
+    """Floor height (m); -inf when the world has none."""
+    ceiling_z_m: float
+    """Ceiling height (m); +inf when the world has none."""
+
+    @classmethod
+    def pack(cls, obstacles: tuple[Obstacle, ...], floor_z_m: float | None,
+             ceiling_z_m: float | None) -> Geometry:
+        """Pack obstacles and bounds (None = no floor / no ceiling)."""
+        m = len(obstacles)
+        kind = np.zeros(m, dtype=np.int64)
+        center = np.zeros((m, 3))
+        rot = np.tile(np.eye(3), (m, 1, 1))
+        half = np.zeros((m, 3))
+        for i, ob in enumerate(obstacles):
+            center[i] = ob.center_m
+            if isinstance(ob, Box):
+                kind[i] = KIND_BOX
+                half[i] = np.asarray(ob.size_m) / 2.0
+                c, s = math.cos(math.radians(ob.yaw_deg)), math.sin(math.radians(ob.yaw_deg))
+                rot[i] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+            elif isinstance(ob, Sphere):
+                kind[i] = KIND_SPHERE
+                half[i] = ob.radius_m
+            else:
+                kind[i] = KIND_CYLINDER
+                half[i] = (ob.radius_m, ob.radius_m, ob.height_m / 2.0)
+                rot[i] = _AXIS_FRAMES[ob.axis]
+        bound = np.where(kind == KIND_BOX, np.linalg.norm(half, axis=1), 0.0)
+        bound = np.where(kind == KIND_SPHERE, half[:, 0], bound)
+        bound = np.where(kind == KIND_CYLINDER, np.hypot(half[:, 0], half[:, 2]), bound)
+        arrays = [kind, center, rot, half, bound]
+        for a in arrays:
+            a.setflags(write=False)
+        floor = -math.inf if floor_z_m is None else float(floor_z_m)
+        ceiling = math.inf if ceiling_z_m is None else float(ceiling_z_m)
+        return cls(*arrays, floor_z_m=floor, ceiling_z_m=ceiling)
+
+
+@dataclass(frozen=True)
+class World:
+    """A world: where to fly (``path``), what bounds it and what is in the way."""
+
+    name: str
+    """Short identifier, e.g. ``env04-slalom-lr``."""
+    path: RoughPath
+    """The rough path (world frame) with the moving setpoint's speed."""
+    description: str = ""
+    """Free text for people."""
+    floor_z_m: float | None = None
+    """Height (m) of a solid floor, or None."""
+    ceiling_z_m: float | None = None
+    """Height (m) of a solid ceiling, or None."""
+    obstacles: tuple[Obstacle, ...] = ()
+    """Solid obstacles."""
+    geometry: Geometry = field(init=False, repr=False, compare=False)
+    """The obstacles packed into arrays (derived)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "obstacles", tuple(self.obstacles))
+        object.__setattr__(self, "geometry", Geometry.pack(self.obstacles, self.floor_z_m, self.ceiling_z_m))
+
+
+# ---------------------------------------------------------------------------------------------- parsing
+
+
+def _number(value: Any, where: str, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise WorldError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _vec3(value: Any, where: str, key: str) -> Vec3:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise WorldError(f"{where}: '{key}' must be a list of 3 numbers [x, y, z], got {value!r}")
+    x, y, z = (_number(v, where, key) for v in value)
+    return (x, y, z)
+
+
+def _positive(value: Any, where: str, key: str) -> float:
+    v = _number(value, where, key)
+    if v <= 0.0:
+        raise WorldError(f"{where}: '{key}' must be positive, got {value!r}")
+    return v
+
+
+def _mapping(value: Any, where: str, required: tuple[str, ...],
+             allowed: tuple[str, ...]) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise WorldError(f"{where}: expected a mapping, got {type(value).__name__} {value!r}")
+    for key in required:
+        if key not in value:
+            raise WorldError(f"{where}: missing required key '{key}'")
+    unknown = sorted(str(k) for k in value if k not in allowed)
+    if unknown:
+        raise WorldError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    return value
+
+
+_SHAPE_KEYS = {
+    "box": (("center", "size"), ("type", "center", "size", "yaw_deg")),
+    "sphere": (("center", "radius"), ("type", "center", "radius")),
+    "cylinder": (("center", "radius", "height"), ("type", "center", "radius", "height", "axis")),
+}
+
+
+def _parse_obstacle(entry: Any, where: str) -> Obstacle:
+    if not isinstance(entry, Mapping) or "type" not in entry:
+        raise WorldError(f"{where}: expected a mapping with a 'type' (box, sphere, cylinder), got {entry!r}")
+    shape = entry["type"]
+    if shape not in _SHAPE_KEYS:
+        raise WorldError(f"{where}: unknown shape type {shape!r}; expected one of {sorted(_SHAPE_KEYS)}")
+    required, allowed = _SHAPE_KEYS[shape]
+    _mapping(entry, where, required, allowed)
+    center = _vec3(entry["center"], where, "center")
+    if shape == "box":
+        size = _vec3(entry["size"], where, "size")
+        if min(size) <= 0.0:
+            raise WorldError(f"{where}: 'size' must be 3 positive numbers, got {list(entry['size'])!r}")
+        return Box(center, size, _number(entry.get("yaw_deg", 0.0), where, "yaw_deg"))
+    if shape == "sphere":
+        return Sphere(center, _positive(entry["radius"], where, "radius"))
+    axis = entry.get("axis", "z")
+    if axis not in ("x", "y", "z"):
+        raise WorldError(f"{where}: 'axis' must be one of x, y, z, got {axis!r}")
+    return Cylinder(center, _positive(entry["radius"], where, "radius"),
+                    _positive(entry["height"], where, "height"), axis)
+
+
+def parse_world(mapping: Any, source: str = "<world>") -> World:
+    """Validate a mapping (e.g. loaded YAML) into a :class:`World`; errors name ``source`` and the entry."""
+    top = _mapping(mapping, source, ("name", "path"), ("name", "description", "path", "bounds", "obstacles"))
+    name = top["name"]
+    if not isinstance(name, str) or not name.strip():
+        raise WorldError(f"{source}: name: must be a non-empty string, got {name!r}")
+    description = top.get("description", "") or ""
+    if not isinstance(description, str):
+        raise WorldError(f"{source}: description: must be a string, got {description!r}")
+
+    where = f"{source}: path"
+    path_map = _mapping(top["path"], where, ("waypoints",), ("waypoints", "speed_m_s"))
+    wps = path_map["waypoints"]
+    if not isinstance(wps, (list, tuple)) or len(wps) < 2:
+        raise WorldError(f"{where}: 'waypoints' must be a list of at least 2 [x, y, z] points, got {wps!r}")
+    waypoints = [_vec3(p, f"{where}.waypoints[{k}]", "waypoint") for k, p in enumerate(wps)]
+    speed = _positive(path_map.get("speed_m_s", 1.0), where, "speed_m_s")
+    try:
+        rough = RoughPath(np.array(waypoints, dtype=np.float64), speed)
+    except ValueError as exc:
+        raise WorldError(f"{where}: {exc}") from None
+
+    floor = ceiling = None
+    if top.get("bounds") is not None:
+        where = f"{source}: bounds"
+        bounds = _mapping(top["bounds"], where, (), ("floor_z", "ceiling_z"))
+        if bounds.get("floor_z") is not None:
+            floor = _number(bounds["floor_z"], where, "floor_z")
+        if bounds.get("ceiling_z") is not None:
+            ceiling = _number(bounds["ceiling_z"], where, "ceiling_z")
+        if floor is not None and ceiling is not None and ceiling <= floor:
+            raise WorldError(f"{where}: 'ceiling_z' ({ceiling}) must be above 'floor_z' ({floor})")
+
+    raw_obs = top.get("obstacles") or []
+    if not isinstance(raw_obs, (list, tuple)):
+        raise WorldError(f"{source}: obstacles: must be a list, got {type(raw_obs).__name__}")
+    obstacles = tuple(_parse_obstacle(e, f"{source}: obstacles[{i}]") for i, e in enumerate(raw_obs))
+    return World(name=name.strip(), path=rough, description=description.strip(), floor_z_m=floor,
+                 ceiling_z_m=ceiling, obstacles=obstacles)
+
+
+def load_world(path: str | Path) -> World:
+    """Read and validate a world YAML file; any problem raises :class:`WorldError`."""
+    try:
+        data = load_yaml(path)
+    except ConfigError as exc:
+        raise WorldError(str(exc)) from None
+    return parse_world(data, source=str(path))
+
+
+def world_to_mapping(world: World) -> dict[str, Any]:
+    """The inverse of :func:`parse_world`: a plain mapping that can be dumped as a world YAML file."""
+    obstacles: list[dict[str, Any]] = []
+    for ob in world.obstacles:
+        if isinstance(ob, Box):
+            obstacles.append({"type": "box", "center": list(ob.center_m), "size": list(ob.size_m),
+                              "yaw_deg": ob.yaw_deg})
+        elif isinstance(ob, Sphere):
+            obstacles.append({"type": "sphere", "center": list(ob.center_m), "radius": ob.radius_m})
+        else:
+            obstacles.append({"type": "cylinder", "center": list(ob.center_m), "radius": ob.radius_m,
+                              "height": ob.height_m, "axis": ob.axis})
+    out: dict[str, Any] = {
+        "name": world.name,
+        "description": world.description,
+        "path": {"waypoints": world.path.waypoints_m.tolist(), "speed_m_s": world.path.speed_m_s},
+        "obstacles": obstacles,
+    }
+    pairs = (("floor_z", world.floor_z_m), ("ceiling_z", world.ceiling_z_m))
+    bounds = {k: v for k, v in pairs if v is not None}
+    if bounds:
+        out["bounds"] = bounds
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- paper worlds
+
+
+def paper_world_path(i: int) -> Path:
+    """File of the paper's environment ``i`` (1..10): ``sim_harness/worlds/envNN-*.yaml``."""
+    if isinstance(i, bool) or not isinstance(i, int) or not 1 <= i <= 10:
+        raise WorldError(f"paper world id must be an integer 1..10, got {i!r}")
+    matches = sorted(WORLDS_DIR.glob(f"env{i:02d}-*.yaml"))
+    if len(matches) != 1:
+        raise WorldError(f"{WORLDS_DIR}: expected exactly one env{i:02d}-*.yaml, found {len(matches)}")
+    return matches[0]
+
+
+def resolve_world_arg(arg: str) -> Path:
+    """A command-line world: a file path, or a paper world id (``env04``, ``4``, ``env04-slalom-lr``)."""
+    p = Path(arg)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    key = arg.lower().removeprefix("env").split("-", 1)[0]
+    if key.isdigit():
+        return paper_world_path(int(key))
+    raise WorldError(f"world {arg!r}: not a file and not a paper world id (env01..env10)")
