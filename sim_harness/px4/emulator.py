@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import select
 import threading
@@ -45,7 +46,11 @@ _SLOW = ("SYS_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "GLOBAL_POSITION_I
 def _collision_fn(world: World | None, radius_m: float) -> Callable[[NDArray, NDArray], bool] | None:
     if world is None:
         return None
-    from sim_harness.collision import sweep_collides  # helper A's module; imported only with a world
+    from sim_harness.collision import sweep_collides  # imported only with a world
+
+    # The floor is the vehicle's ground (landing on it is not a crash): the vehicle model handles
+    # it; the collision check sees the obstacles and the ceiling.
+    world = dataclasses.replace(world, floor_z_m=None)
 
     def collide(prev: NDArray[np.float64], new: NDArray[np.float64]) -> bool:
         trail = np.stack([prev, new])[:, None, :]
@@ -58,7 +63,11 @@ def _default_start(world: World | None) -> NDArray[np.float64]:
     if world is None:
         return np.zeros(3)
     first = np.asarray(world.path.waypoints_m, dtype=np.float64)[0]
-    return np.array([first[0], first[1], world.floor_z_m])
+    return np.array([first[0], first[1], _floor_z(world)])
+
+
+def _floor_z(world: World | None) -> float:
+    return 0.0 if world is None or world.floor_z_m is None else float(world.floor_z_m)
 
 
 class Px4Emulator:
@@ -81,7 +90,7 @@ class Px4Emulator:
         self._start_pos = _default_start(world) if start_pos_world_m is None else np.asarray(
             start_pos_world_m, dtype=np.float64)
         self._start_yaw = float(start_yaw_rad)
-        self._floor_z_m = float(world.floor_z_m) if world is not None else 0.0
+        self._floor_z_m = _floor_z(world)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

@@ -258,7 +258,7 @@ class Px4Vehicle:
             return
         self._failsafes(t)
         prev = self.pos_world_m.copy()
-        if self.armed and (self.mode in ("TAKEOFF", "OFFBOARD") or not self._on_floor()):
+        if self.armed and (self.mode in ("TAKEOFF", "OFFBOARD", "LAND") or not self._on_floor()):
             target, vel_ff, yaw_target = self._target(t, dt)
             self.state = step(self.state, target[None, :], None if vel_ff is None else vel_ff[None, :],
                               self.quad_params, dt)
@@ -269,8 +269,8 @@ class Px4Vehicle:
             vel = self.vel_world_m_s.copy()
             vel[2] -= _GRAVITY_M_S2 * dt
             self.state = QuadState(self.state.pos_m + vel[None, :] * dt, vel[None, :])
-        else:
-            self.state = QuadState.at_rest(self.state.pos_m[0])
+        else:  # parked on the floor
+            self.state = QuadState.at_rest(np.array([*self.pos_world_m[:2], self.floor_z_m]))
         self._ground_contact(t)
         if self._collide is not None and self._collide(prev, self.pos_world_m.copy()):
             self.crash(t, "collision with the world")
