@@ -136,11 +136,12 @@ class CommandHandler:
             result = self._switch("LAND", t) if self.emu.faults.mode_denied("LAND") else v.land(t)
         elif cmd == m.MAV_CMD_SET_MESSAGE_INTERVAL:
             result = self._set_interval(p[0], p[1])
-        elif cmd == m.MAV_CMD_REQUEST_MESSAGE:
-            result = self._request_message(p[0], link, t)
-        elif cmd == m.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
-            self._ack(msg, link, t, m.MAV_RESULT_ACCEPTED)
-            self.emu.send(tm.autopilot_version(self.emu.config.system_id), t, link)
+        elif cmd in (m.MAV_CMD_REQUEST_MESSAGE, m.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
+            msg_id = p[0] if cmd == m.MAV_CMD_REQUEST_MESSAGE else m.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+            reply = self._requested_message(msg_id, t)
+            self._ack(msg, link, t, m.MAV_RESULT_UNSUPPORTED if reply is None else m.MAV_RESULT_ACCEPTED)
+            if reply is not None:  # the message follows its ACK, as PX4 does
+                self.emu.send(reply, t, link)
             return
         else:
             log.debug("px4_emulator_unsupported_command", command=cmd)
@@ -173,9 +174,9 @@ class CommandHandler:
             self.intervals_s[name] = max(interval_us * 1e-6, 1.0 / 250.0)
         return m.MAV_RESULT_ACCEPTED
 
-    def _request_message(self, msg_id: float, link: MavlinkLink, t: float) -> int:
+    def _requested_message(self, msg_id: float, t: float) -> Any | None:
         if not _finite(msg_id):
-            return m.MAV_RESULT_DENIED
+            return None
         snap = self.emu.snapshot(t)
         builders = {
             m.MAVLINK_MSG_ID_AUTOPILOT_VERSION: lambda: tm.autopilot_version(self.emu.config.system_id),
@@ -185,10 +186,7 @@ class CommandHandler:
             m.MAVLINK_MSG_ID_HEARTBEAT: lambda: tm.heartbeat(snap),
         }
         build = builders.get(int(msg_id))
-        if build is None:
-            return m.MAV_RESULT_UNSUPPORTED
-        self.emu.send(build(), t, link)
-        return m.MAV_RESULT_ACCEPTED
+        return None if build is None else build()
 
     # --- setpoints and parameters ----------------------------------------------------------------
     def _setpoint(self, msg: Any, t: float) -> None:
