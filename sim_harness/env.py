@@ -31,7 +31,7 @@ from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.primitives import bezier_position, bezier_velocity
 from quadnav_onboard.reward import RewardParams, reward
-from sim_harness.collision import sweep_collides
+from sim_harness.collision import collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_network_inputs
 from sim_harness.world import World
@@ -149,6 +149,17 @@ class VecQuadNavEnv:
         rel = world.path.relative_state(sp, self.pos_m[ids], yaw).astype(np.float32)
         return depth.astype(np.float32, copy=False), rel
 
+    def _stop_at_contact(
+        self, world: World, ids: NDArray[np.int64], collided: NDArray, trail: NDArray, state: QuadState
+    ) -> None:
+        for j in np.flatnonzero(collided):
+            hits = np.flatnonzero(collides(world, trail[:, j], self.config.quad.radius_m))
+            if hits.size:
+                state.pos_m[j] = trail[hits[0], j]
+                state.vel_m_s[j] = 0.0
+        self.pos_m[ids] = state.pos_m
+        self.vel_m_s[ids] = state.vel_m_s
+
     # -- API -------------------------------------------------------------------------------------
     def reset(self, mask: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Start new episodes in the envs of ``mask`` (all if None); returns the observations."""
@@ -212,6 +223,8 @@ class VecQuadNavEnv:
             self.cmd_vel_m_s[ids] = target_vel[-1]
             self.steps[ids] = k + 1
             collided = sweep_collides(world, trail, cfg.quad.radius_m)
+            if collided.any():  # a crashed quad stops where it first touched
+                self._stop_at_contact(world, ids, collided, trail, state)
             t = self._path_terms(ids, world, state.pos_m, k + 1)
             d_now = np.linalg.norm(t["sp"] - state.pos_m, axis=-1)
             deviated = t["dev"] > cfg.reward.max_deviation_m

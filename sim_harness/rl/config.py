@@ -46,6 +46,8 @@ class TrainConfig:
     """Training episodes (the paper: 2000); the schedules are indexed by episode."""
     train_worlds: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7)
     """Paper world ids visited at random during training (never 8-10: they are held out)."""
+    world_files: tuple[str, ...] = ()
+    """World YAML files to train on instead of ``train_worlds`` (when not empty)."""
     n_envs: Annotated[int, pydantic.Field(ge=1)] = 16
     """Environments stepped together (vectorised numpy)."""
     max_steps: Annotated[int, pydantic.Field(ge=1)] = 120
@@ -88,8 +90,8 @@ class TrainConfig:
     """Relative positions stacked as input (1 = the paper)."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1)] = 100
     """Episodes between checkpoints (model + resumable training state)."""
-    torch_threads: Annotated[int, pydantic.Field(ge=1)] = 2
-    """torch.set_num_threads."""
+    torch_threads: Annotated[int, pydantic.Field(ge=1)] = 1
+    """torch.set_num_threads (1: on a loaded 2-core machine two OpenMP threads ran ~10x slower)."""
     out_dir: str = "runs"
     """Parent folder of run directories."""
 
@@ -136,7 +138,8 @@ def add_dataclass_flags(parser: argparse.ArgumentParser, cls: type) -> None:
         if tp is bool:
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         elif typing.get_origin(tp) is tuple:
-            parser.add_argument(flag, type=int, nargs="+", default=None, help=help_text)
+            item = typing.get_args(tp)[0]
+            parser.add_argument(flag, type=item, nargs="+", default=None, help=help_text)
         else:
             parser.add_argument(flag, type=tp, default=None, help=help_text)
 

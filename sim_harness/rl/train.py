@@ -87,9 +87,17 @@ def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:
 
 
 def train(
-    config: TrainConfig | None = None, *, resume: str | Path | None = None, progress: bool = True
+    config: TrainConfig | None = None,
+    *,
+    resume: str | Path | None = None,
+    progress: bool = True,
+    kill_after_episodes: int | None = None,
 ) -> TrainResult:
-    """Train (or resume) one run; returns its directory, final model and throughput figures."""
+    """Train (or resume) one run; returns its directory, final model and throughput figures.
+
+    ``kill_after_episodes`` (tests) stops abruptly after that many finished episodes, without the
+    final checkpoint, as a killed process would.
+    """
     if resume is not None:
         run_dir = Path(resume)
         cfg = load_train_config(read_config_file(run_dir / "config.json"), str(run_dir / "config.json"))
@@ -100,7 +108,8 @@ def train(
     torch.set_num_threads(cfg.torch_threads)
     torch.manual_seed(cfg.seed)
     env_cfg = env_config_for(cfg)
-    worlds = [load_world(paper_world_path(i)) for i in cfg.train_worlds]
+    world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
+    worlds = [load_world(p) for p in world_paths]
     env = VecQuadNavEnv(worlds, cfg.n_envs, seed=cfg.seed, config=env_cfg)
     agent = DQNAgent(
         network_config_for(cfg),
@@ -179,7 +188,7 @@ def train(
             rows.append(
                 {
                     "episode": finished,
-                    "world": cfg.train_worlds[int(info["world_index"][i])],
+                    "world": worlds[int(info["world_index"][i])].name,
                     "reward": round(float(info["episode_return"][i]), 6),
                     "length": int(info["steps"][i]),
                     "outcome": str(info["outcome"][i]),
@@ -199,12 +208,17 @@ def train(
             bar.set_postfix(reward=f"{rows[-1]['reward']:.2f}", eps=f"{eps[i]:.2f}", refresh=False)
             if finished % cfg.checkpoint_every == 0 and finished < cfg.episodes:
                 checkpoint()
+            if kill_after_episodes is not None and finished >= kill_after_episodes:
+                bar.close()
+                return TrainResult(
+                    run_dir, run_dir / "checkpoints" / "latest.pt", finished, env_steps, 0, 0.0
+                )
     bar.close()
-    model_path = checkpoint(final=True)
-    final_path = run_dir / "checkpoints" / "final.pt"
+    checkpoint(final=True)
     wall = time.monotonic() - t0
-    del model_path
-    return TrainResult(run_dir, final_path, finished, env_steps, agent.n_updates, wall)
+    return TrainResult(
+        run_dir, run_dir / "checkpoints" / "final.pt", finished, env_steps, agent.n_updates, wall
+    )
 
 
 def _env_meta(env_cfg: EnvConfig) -> dict[str, Any]:

@@ -1,0 +1,101 @@
+"""``quadnav-sim eval``: fly a checkpoint greedily in worlds and print the paper's table."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "eval",
+        help="evaluate a checkpoint: the paper's table per world and trial, then success rates",
+        description="Evaluate a checkpoint greedily. Prints navigation distance, time, crash, total "
+        "reward and outcome per world and trial, then the success and collision-free rates.",
+    )
+    p.add_argument(
+        "--model", default=None, help="checkpoint (default: the shipped quadnav_onboard/models/default.pt)"
+    )
+    p.add_argument(
+        "--world",
+        action="append",
+        default=None,
+        metavar="WORLD",
+        help="world YAML file or paper id (env04, 4); repeat for more (default: the ten paper worlds)",
+    )
+    p.add_argument("--trials", type=int, default=5, help="trials per world (default 5, as in the paper)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default 0)")
+    p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
+    p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from quadnav_onboard.checkpoint import CheckpointError
+    from quadnav_onboard.config import ConfigError
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from sim_harness.rl.evaluate import (
+        env_config_for_policy,
+        evaluate,
+        format_table,
+        policy_greedy_fn,
+        summarize,
+    )
+    from sim_harness.world import WorldError, load_world, paper_world_path, resolve_world_arg
+
+    if args.trials < 1 or args.max_steps < 1:
+        print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
+        return 2
+    model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
+    try:
+        policy = Policy.from_path(model)
+        paths = (
+            [resolve_world_arg(w) for w in args.world]
+            if args.world
+            else [paper_world_path(i) for i in range(1, 11)]
+        )
+        worlds = [load_world(p) for p in paths]
+        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps)
+    except (CheckpointError, WorldError, ConfigError) as exc:
+        print(f"quadnav-sim eval: {exc}", file=sys.stderr)
+        return 2
+    bar = tqdm(total=len(worlds), desc="eval", unit="world", disable=args.no_progress, file=sys.stderr)
+    rows = evaluate(
+        policy_greedy_fn(policy),
+        worlds,
+        args.trials,
+        args.seed,
+        env_cfg,
+        on_world_done=lambda _w: bar.update(1),
+    )
+    bar.close()
+    summary = summarize(rows)
+    print(format_table(rows))
+    print()
+    print(
+        f"trials {summary['trials']}: success {summary['success_rate']:.1%}, collision-free "
+        f"{summary['collision_free_rate']:.1%}, "
+        f"success among safe flights {summary['success_among_safe']:.1%}"
+    )
+    if args.json:
+        out = {
+            "model": str(model),
+            "model_sha256": policy.checkpoint.sha256,
+            "trials": args.trials,
+            "seed": args.seed,
+            "max_steps": args.max_steps,
+            "worlds": [str(p) for p in paths],
+            "rows": [r.to_dict() for r in rows],
+            "summary": summary,
+        }
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=2), encoding="utf-8")
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,106 @@
+"""Evaluation: success counting on scripted policies, the table, and the eval command."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from quadnav_onboard.checkpoint import save_checkpoint
+from quadnav_onboard.network import DQN, NetworkConfig
+from sim_harness.cli import main
+from sim_harness.env import EnvConfig
+from sim_harness.rl.evaluate import EvalRow, evaluate, format_table, summarize
+from sim_harness.world import parse_world
+
+FORWARD, LEFT = 4, 16
+
+
+def _world(name: str, obstacles: list) -> object:
+    return parse_world(
+        {"name": name, "path": {"waypoints": [[0, 0, 2], [12, 0, 2]]}, "obstacles": obstacles}, "test"
+    )
+
+
+def _forward(depth: np.ndarray, rel: np.ndarray) -> np.ndarray:
+    return np.full(len(depth), FORWARD)
+
+
+def test_success_counting_on_a_scripted_policy() -> None:
+    free = _world("free", [])
+    wall = _world("wall", [{"type": "box", "center": [5, 0, 2], "size": [0.2, 20, 20]}])
+    rows = evaluate(_forward, [free, wall], trials=3, seed=0, env_config=EnvConfig(max_steps=30))
+    assert [r.world for r in rows] == ["free"] * 3 + ["wall"] * 3
+    assert [r.outcome for r in rows] == ["goal"] * 3 + ["crash"] * 3
+    assert [r.crash for r in rows] == [False] * 3 + [True] * 3
+    assert all(r.distance_m >= 11.0 for r in rows[:3]) and all(r.distance_m < 5.0 for r in rows[3:])
+    s = summarize(rows)
+    assert s["trials"] == 6 and s["goal"] == 3 and s["collision_free"] == 3
+    assert s["success_rate"] == 0.5 and s["collision_free_rate"] == 0.5 and s["success_among_safe"] == 1.0
+
+
+def test_summary_separates_safe_failures_from_crashes() -> None:
+    def row(outcome: str) -> EvalRow:
+        return EvalRow("w", 0, 1.0, 1.0, outcome == "crash", 0.0, outcome)
+
+    s = summarize([row("goal"), row("timeout"), row("deviation"), row("crash")])
+    assert s["success_rate"] == 0.25
+    assert s["collision_free_rate"] == 0.75
+    assert abs(s["success_among_safe"] - 1 / 3) < 1e-12
+
+
+def test_sideways_policy_deviates_and_hovering_times_out() -> None:
+    free = _world("free", [])
+    rows = evaluate(lambda d, r: np.full(len(d), LEFT), [free], 2, 0, EnvConfig(max_steps=30))
+    assert {r.outcome for r in rows} == {"deviation"}
+    rows = evaluate(lambda d, r: np.full(len(d), 13), [free], 2, 0, EnvConfig(max_steps=7))
+    assert {r.outcome for r in rows} == {"timeout"} and all(r.time_s == 7.0 for r in rows)
+
+
+def test_table_has_the_papers_columns() -> None:
+    text = format_table([EvalRow("env01-free", 0, 60.0, 57.0, False, 12.15, "goal")])
+    assert "distance (m)" in text and "time (s)" in text and "crash" in text and "reward" in text
+    assert "60.00" in text and "goal" in text
+
+
+def test_eval_command_writes_json_rows_for_any_world_file(tmp_path, capsys) -> None:
+    world = tmp_path / "mine.yaml"
+    world.write_text("name: mine\npath:\n  waypoints: [[0, 0, 2], [8, 0, 2]]\n")
+    model = save_checkpoint(tmp_path / "m.pt", DQN(NetworkConfig()))
+    out = tmp_path / "eval.json"
+    rc = main(
+        [
+            "eval",
+            "--model",
+            str(model),
+            "--world",
+            str(world),
+            "--trials",
+            "2",
+            "--json",
+            str(out),
+            "--no-progress",
+            "--max-steps",
+            "15",
+        ]
+    )
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert len(data["rows"]) == 2 and data["rows"][0]["world"] == "mine"
+    assert data["summary"]["trials"] == 2
+    assert "success" in capsys.readouterr().out
+
+
+def test_eval_command_reports_a_bad_world_without_a_traceback(tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\n")
+    model = save_checkpoint(tmp_path / "m.pt", DQN(NetworkConfig()))
+    rc = main(["eval", "--model", str(model), "--world", str(bad), "--no-progress"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "bad.yaml" in err and "Traceback" not in err
+
+
+def test_eval_command_reports_a_missing_model(tmp_path, capsys) -> None:
+    rc = main(["eval", "--model", str(tmp_path / "none.pt"), "--no-progress"])
+    assert rc == 2 and "not found" in capsys.readouterr().err

@@ -1,0 +1,135 @@
+"""Schedules, replay buffer, n-step returns and the DQN update."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from quadnav_onboard.network import NetworkConfig
+from sim_harness.rl.agent import AgentConfig, DQNAgent
+from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
+from sim_harness.rl.schedules import LinearSchedule, linear_schedule
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """Two OpenMP threads on a shared 2-core machine are many times slower than one."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize(("start", "end"), [(1.0, 0.1), (0.01, 0.99)])
+def test_schedules_hit_their_end_points_at_80_percent_and_stay_flat(start: float, end: float) -> None:
+    sched = LinearSchedule(start, end, total_episodes=2000, fraction=0.8)
+    assert sched(0) == pytest.approx(start)
+    assert sched(1600) == pytest.approx(end)
+    assert sched(800) == pytest.approx((start + end) / 2)
+    assert all(sched(e) == pytest.approx(end) for e in (1601, 1800, 1999, 2500))
+    values = [sched(e) for e in range(0, 1601)]
+    diffs = np.diff(values)
+    assert np.all(diffs < 0) if end < start else np.all(diffs > 0)  # strictly monotone ramp
+
+
+def test_schedule_rejects_bad_arguments() -> None:
+    with pytest.raises(ValueError):
+        linear_schedule(1.0, 0.1, 0, 0, 0.8)
+    with pytest.raises(ValueError):
+        linear_schedule(1.0, 0.1, 0, 10, 0.0)
+
+
+def _transitions(m: int, offset: int = 0) -> dict[str, np.ndarray]:
+    i = np.arange(offset, offset + m)
+    return {
+        "depth": np.broadcast_to((i % 97 / 100.0)[:, None, None, None], (m, 1, 32, 32)).astype(np.float32),
+        "rel": np.stack([i, -i, 2 * i], axis=1)[:, None, :].astype(np.float32),
+        "action": i % 18,
+        "reward": i.astype(np.float32) * 0.5,
+        "next_depth": np.ones((m, 1, 32, 32), np.float32),
+        "next_rel": np.stack([i + 1, i, i], axis=1)[:, None, :].astype(np.float32),
+        "done": (i % 2).astype(np.float32),
+    }
+
+
+def test_replay_samples_exactly_what_was_stored() -> None:
+    buf = ReplayBuffer(100, (1, 32, 32), (1, 3), seed=0)
+    buf.add(**_transitions(40))
+    batch = buf.sample(256)
+    i = batch.rel[:, 0, 0].astype(int)  # the transition id we encoded
+    assert set(i.tolist()) <= set(range(40))
+    np.testing.assert_array_equal(batch.rel[:, 0], np.stack([i, -i, 2 * i], axis=1))
+    np.testing.assert_array_equal(batch.action, i % 18)
+    np.testing.assert_array_equal(batch.reward, i * 0.5)
+    np.testing.assert_array_equal(batch.done, i % 2)
+    np.testing.assert_allclose(batch.depth[:, 0, 5, 5], i % 97 / 100.0, atol=1e-3)  # float16 storage
+    np.testing.assert_array_equal(batch.next_rel[:, 0, 0], i + 1)
+    assert len(set(i.tolist())) > 30  # uniform over what is there
+
+
+def test_replay_ring_overwrites_the_oldest() -> None:
+    buf = ReplayBuffer(50, (1, 32, 32), (1, 3), seed=1)
+    for k in range(4):
+        buf.add(**_transitions(20, offset=20 * k))
+    assert len(buf) == 50
+    ids = set(buf.sample(2000).rel[:, 0, 0].astype(int).tolist())
+    assert ids == set(range(30, 80))
+
+
+def test_replay_sampling_is_seeded() -> None:
+    a, b = (ReplayBuffer(100, (1, 32, 32), (1, 3), seed=5) for _ in range(2))
+    for buf in (a, b):
+        buf.add(**_transitions(60))
+    np.testing.assert_array_equal(a.sample(32).index, b.sample(32).index)
+
+
+def test_nstep_accumulates_discounted_returns_and_flushes_at_episode_end() -> None:
+    acc = NStepAccumulator(n_envs=1, n_step=3)
+    gamma = 0.5
+    z = np.zeros((1, 1, 32, 32), np.float32)
+    outs = []
+    for t in range(5):
+        rel = np.full((1, 1, 3), t, np.float32)
+        nxt = np.full((1, 1, 3), t + 1, np.float32)
+        end = np.array([t == 4])
+        outs.append(acc.push(z, rel, np.array([t]), np.array([1.0]), z, nxt, end, np.array([False]), gamma))
+    assert outs[0] == {} and outs[1] == {}
+    assert outs[2]["reward"].tolist() == [1.75] and outs[2]["n"].tolist() == [3]
+    assert outs[2]["next_rel"][0, 0, 0] == 3 and outs[2]["action"].tolist() == [0]
+    last = outs[4]  # t=2 (3-step), t=3 (2-step), t=4 (1-step), all terminal
+    assert last["action"].tolist() == [2, 3, 4]
+    assert last["reward"].tolist() == [1.75, 1.5, 1.0]
+    assert last["n"].tolist() == [3, 2, 1]
+    assert last["done"].tolist() == [1.0, 1.0, 1.0]
+
+
+def test_dqn_update_moves_q_towards_the_target() -> None:
+    torch.manual_seed(0)
+    agent = DQNAgent(NetworkConfig(), AgentConfig(learning_rate=1e-3, target_update_interval=10_000))
+    buf = ReplayBuffer(16, (1, 32, 32), (1, 3), seed=0)
+    t = _transitions(16)
+    t["done"] = np.ones(16, np.float32)  # terminal: target = reward
+    t["reward"] = np.full(16, 2.0, np.float32)
+    buf.add(**t)
+    batch = buf.sample(16)
+    first = agent.update(batch, gamma=0.99)
+    for _ in range(100):
+        last = agent.update(batch, gamma=0.99)
+    assert last < first * 0.1
+    with torch.no_grad():
+        q = agent.q(torch.as_tensor(batch.depth), torch.as_tensor(batch.rel))
+    q_sa = q.gather(1, torch.as_tensor(batch.action)[:, None]).squeeze(1)
+    assert torch.allclose(q_sa, torch.full_like(q_sa, 2.0), atol=0.3)
+
+
+def test_epsilon_one_is_uniform_and_zero_is_greedy() -> None:
+    torch.manual_seed(0)
+    agent = DQNAgent(NetworkConfig())
+    rng = np.random.default_rng(0)
+    depth = np.ones((300, 1, 32, 32), np.float32)
+    rel = np.zeros((300, 1, 3), np.float32)
+    greedy = agent.act(depth, rel, 0.0, rng)
+    assert len(set(greedy.tolist())) == 1
+    random = agent.act(depth, rel, 1.0, rng)
+    assert len(set(random.tolist())) == 18

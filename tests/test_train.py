@@ -1,0 +1,116 @@
+"""Training end to end: a tiny run trains, checkpoints, evaluates, and resumes after a kill."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from quadnav_onboard.checkpoint import load_checkpoint
+from quadnav_onboard.config import PrimitiveConfig, parse_config
+from quadnav_onboard.policy import Policy
+from quadnav_onboard.preprocess import PreprocessConfig
+from sim_harness.rl.config import TrainConfig
+from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn, summarize
+from sim_harness.rl.train import train
+from sim_harness.world import load_world, paper_world_path
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _tiny(tmp_path, **kw) -> TrainConfig:
+    base = dict(
+        name="tiny",
+        seed=3,
+        episodes=8,
+        train_worlds=(1, 4),
+        n_envs=4,
+        max_steps=12,
+        batch_size=8,
+        buffer_size=500,
+        learning_starts=16,
+        updates_per_step=1.0,
+        target_update_interval=5,
+        checkpoint_every=4,
+        out_dir=str(tmp_path),
+    )
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_smoke_train_then_evaluate(tmp_path) -> None:
+    result = train(_tiny(tmp_path, depth_history=2, double_dqn=True, dueling=True, n_step=2), progress=False)
+    run = result.run_dir
+    assert run.name.startswith("tiny__seed3__")
+    for name in ("config.json", "metrics.csv", "metrics.json", "reward_curve.png", "state.pt", "state.json"):
+        assert (run / name).is_file(), name
+    rows = list(csv.DictReader((run / "metrics.csv").open()))
+    assert [int(r["episode"]) for r in rows] == list(range(8))
+    assert {r["outcome"] for r in rows} <= {"goal", "crash", "deviation", "timeout"}
+    assert all(1 <= int(r["length"]) <= 12 for r in rows)
+    assert result.updates > 0 and result.env_steps > 0
+    assert json.loads((run / "config.json").read_text())["n_step"] == 2
+
+    policy = Policy.from_path(result.model_path)
+    assert policy.depth_history == 2 and policy.network.dueling
+    eval_rows = evaluate(
+        policy_greedy_fn(policy),
+        [load_world(paper_world_path(1))],
+        trials=2,
+        seed=0,
+        env_config=env_config_for_policy(policy, max_steps=10),
+    )
+    assert len(eval_rows) == 2 and summarize(eval_rows)["trials"] == 2
+
+
+def test_checkpoint_round_trips_with_its_training_settings(tmp_path) -> None:
+    result = train(_tiny(tmp_path, episodes=4), progress=False)
+    ckpt = load_checkpoint(result.model_path)
+    assert parse_config(PrimitiveConfig, ckpt.primitives, "p") == PrimitiveConfig()
+    assert parse_config(PreprocessConfig, ckpt.preprocess, "p") == PreprocessConfig()
+    assert ckpt.meta["seed"] == 3
+    assert ckpt.meta["train_config"]["episodes"] == 4
+    assert ckpt.meta["git_commit"]
+    state = torch.load(result.run_dir / "state.pt", weights_only=True)
+    for name, tensor in ckpt.model.state_dict().items():
+        assert torch.equal(tensor, state["agent"]["q"][name])
+
+
+def test_resume_after_a_kill_finishes_the_run_without_repeating_episodes(tmp_path) -> None:
+    killed = train(_tiny(tmp_path), progress=False, kill_after_episodes=6)
+    run = killed.run_dir
+    assert not (run / "checkpoints" / "final.pt").exists()
+    assert json.loads((run / "state.json").read_text())["episodes"] == 4  # last checkpoint
+    resumed = train(resume=run, progress=False)
+    assert resumed.run_dir == run and resumed.episodes == 8
+    rows = json.loads((run / "metrics.json").read_text())
+    assert [r["episode"] for r in rows] == list(range(8))
+    assert (run / "checkpoints" / "final.pt").is_file()
+    # the schedules continue where they were: late episodes explore less than early ones
+    eps = np.array([r["epsilon"] for r in rows])
+    assert eps[-1] < eps[0]
+
+
+def test_training_is_seeded(tmp_path) -> None:
+    a = train(_tiny(tmp_path / "a", episodes=4), progress=False)
+    b = train(_tiny(tmp_path / "b", episodes=4), progress=False)
+
+    def rows(run):
+        return [
+            {k: v for k, v in r.items() if k != "wall_s"}
+            for r in json.loads((run / "metrics.json").read_text())
+        ]
+
+    assert rows(a.run_dir) == rows(b.run_dir)
+    wa = load_checkpoint(a.model_path).model.state_dict()
+    wb = load_checkpoint(b.model_path).model.state_dict()
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
