@@ -91,13 +91,14 @@ def test_snippets_create_the_quadnav_user_and_config_folder() -> None:
 
 
 def test_unit_lifecycle_is_notify_with_a_watchdog_and_no_restart_into_flight() -> None:
-    """Type=notify, a watchdog >= 4 s (2 x the 1 s step + margin), restart only on failure, capped."""
+    """Type=notify, a 4-15 s watchdog (> 2 x the 1 s step, bounded hang), restart only on failure, capped."""
     keys = _keys(UNIT.read_text())
     assert keys["Type"] == ["notify"]
     assert keys["NotifyAccess"] == ["main"]
-    assert _timespan_s(keys["WatchdogSec"][0]) >= 4.0
+    assert 4.0 <= _timespan_s(keys["WatchdogSec"][0]) <= 15.0
     assert keys["Restart"] == ["on-failure"]
-    assert "2" in keys["RestartPreventExitStatus"][0].split()
+    # quadnav_onboard.daemon.supervisor.ExitCode: 2 refused, 3 safe abort, 4 crash: no restart
+    assert set(keys["RestartPreventExitStatus"][0].split()) == {"2", "3", "4"}
     assert int(keys["StartLimitBurst"][0]) <= 3
     assert keys["ExecStart"][0].endswith("quadnav-onboard --config /etc/quadnav/flight.yaml")
     assert "--dry-run" not in keys["ExecStart"][0]
