@@ -46,8 +46,8 @@ def _policy(k: int) -> int:
 
 
 def _depth_frame(pos_world_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A plausible D435-like frame (uint16 mm): far background, the box as a nearer rectangle."""
-    img = np.full((_H, _W), 8000, dtype=np.float64)
+    """A plausible D435-like frame (uint16 mm): open space beyond range, floor, the box nearer."""
+    img = np.full((_H, _W), 12000, dtype=np.float64)
     img[int(0.75 * _H) :, :] = 3000.0  # the floor ahead
     box = SYNTHETIC_WORLD["obstacles"][0]
     cx, cy, _ = box["center"]
