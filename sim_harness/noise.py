@@ -17,6 +17,7 @@ Pure: a function of the image, the config and the ``numpy.random.Generator`` pas
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 import pydantic
@@ -31,13 +32,13 @@ class DepthNoise:
 
     __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
 
-    sigma_coeff_per_m: float = pydantic.Field(default=0.0036, ge=0)
+    sigma_coeff_per_m: Annotated[float, pydantic.Field(ge=0)] = 0.0036
     """Axial noise: standard deviation (m) = this (1/m) times depth² (m²)."""
-    edge_rel_threshold: float = pydantic.Field(default=0.1, gt=0)
+    edge_rel_threshold: Annotated[float, pydantic.Field(gt=0)] = 0.1
     """A pixel whose depth differs from a valid 4-neighbour by more than this fraction is an edge."""
-    edge_invalid_prob: float = pydantic.Field(default=0.5, ge=0, le=1)
+    edge_invalid_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.5
     """Probability that an edge pixel reads 0."""
-    dropout_prob: float = pydantic.Field(default=0.01, ge=0, le=1)
+    dropout_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.01
     """Probability that any pixel reads 0."""
 
 
@@ -48,8 +49,11 @@ def _edge_mask(depth_m: NDArray[np.float32], rel: float) -> NDArray[np.bool_]:
     for axis in (-1, -2):
         d = np.diff(depth_m, axis=axis)
         both = valid[..., 1:, :] & valid[..., :-1, :] if axis == -2 else valid[..., 1:] & valid[..., :-1]
-        lo = np.minimum(depth_m[..., 1:, :], depth_m[..., :-1, :]) if axis == -2 else np.minimum(
-            depth_m[..., 1:], depth_m[..., :-1])
+        lo = (
+            np.minimum(depth_m[..., 1:, :], depth_m[..., :-1, :])
+            if axis == -2
+            else np.minimum(depth_m[..., 1:], depth_m[..., :-1])
+        )
         jump = both & (np.abs(d) > rel * lo)
         if axis == -1:
             edge[..., 1:] |= jump
@@ -60,8 +64,9 @@ def _edge_mask(depth_m: NDArray[np.float32], rel: float) -> NDArray[np.bool_]:
     return edge & valid
 
 
-def apply_depth_noise(depth_m: NDArray[np.floating], cfg: DepthNoise, rng: np.random.Generator,
-                      max_range_m: float = 10.0) -> NDArray[np.float32]:
+def apply_depth_noise(
+    depth_m: NDArray[np.floating], cfg: DepthNoise, rng: np.random.Generator, max_range_m: float = 10.0
+) -> NDArray[np.float32]:
     """Noisy copy of a depth image (m, shape (..., H, W), 0 = invalid) -> float32, 0 = invalid.
 
     Invalid input pixels stay invalid. The same ``rng`` state gives the same result, bit for bit.
