@@ -157,7 +157,11 @@ def write_synthetic_flight(
     if crash_at_step is not None:
         rec.event(t0_mono_s + last, "collision", "collision reported", level="error")
         rec.vehicle(t0_mono_s + last, True, "LAND", {"local_position_ok": True, "battery_v": 16.1})
+    detail = {"crash": "collision reported", "goal_reached": "within 1.0 m of the goal"}.get(
+        reason, "step limit"
+    )
     summary = {
+        "detail": detail,
         "navigation_distance_m": best,
         "navigation_time_s": float(last),
         "crashed": crash_at_step is not None,

@@ -27,6 +27,7 @@ from quadnav_onboard.review.table import (
     numbers_from_steps,
     rates,
     row_from_record,
+    summary_value,
 )
 
 __all__ = ["build_parser", "consistency_warnings", "main"]
@@ -71,8 +72,9 @@ def consistency_warnings(rec: FlightRecord, row: FlightRow) -> list[str]:
         if rec.steps:
             computed = numbers_from_steps(rec)
             for key, tol in _TOL.items():
-                if key in summary and summary[key] is not None:
-                    a, b = float(summary[key]), float(computed[key])
+                given = summary_value(summary, key)
+                if given is not None:
+                    a, b = float(given), float(computed[key])
                     if math.isfinite(a) and abs(a - b) > tol:
                         warns.append(f"summary {key}={a:.2f} differs from the recorded decisions ({b:.2f})")
     return warns

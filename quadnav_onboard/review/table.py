@@ -22,6 +22,7 @@ import numpy as np
 from quadnav_onboard.record.reader import FlightRecord
 
 __all__ = [
+    "SUMMARY_ALIASES",
     "SUMMARY_KEYS",
     "FlightRow",
     "format_row",
@@ -30,6 +31,7 @@ __all__ = [
     "rates",
     "row_from_record",
     "row_from_summary",
+    "summary_value",
 ]
 
 SUMMARY_KEYS = (
@@ -41,9 +43,21 @@ SUMMARY_KEYS = (
     "steps",
 )
 """Keys of the flight summary (``close(summary=...)``) that make the paper's row:
-navigation distance (m, furthest progress along the rough path), navigation time (s, from the
-first decision to the stop), crashed (bool), total reward (sum over steps), reached_goal (bool),
-steps (decisions taken)."""
+navigation distance (m, progress along the rough path), navigation time (s, from the first
+decision to the stop), crashed (bool), total reward (sum over steps), reached_goal (bool; default:
+stop reason ``goal_reached``), steps (decisions taken). Aliases: :data:`SUMMARY_ALIASES`."""
+
+SUMMARY_ALIASES: dict[str, tuple[str, ...]] = {"navigation_time_s": ("flight_time_s",)}
+"""Other names accepted for a summary key (the daemon's FlightSummary says ``flight_time_s``)."""
+
+
+def summary_value(summary: Mapping[str, Any], key: str) -> Any:
+    """``summary[key]`` or its first alias present; None when absent."""
+    for k in (key, *SUMMARY_ALIASES.get(key, ())):
+        if summary.get(k) is not None:
+            return summary[k]
+    return None
+
 
 _CRASH_REASONS = ("crash", "collision")
 _GOAL_REASONS = ("goal_reached", "goal")
@@ -65,6 +79,8 @@ class FlightRow:
     steps: int
     stop_reason: str
     """Why the flight stopped ("(cut off)" when the record ends without one)."""
+    detail: str
+    """The daemon's human-readable detail of the stop ("" when none)."""
     complete: bool
     """The record was closed properly (False: cut off, e.g. SIGKILL)."""
     source: str
@@ -110,16 +126,23 @@ def row_from_summary(
 ) -> FlightRow:
     """The row from a daemon summary alone (what the daemon prints at the end of a flight)."""
     crashed, reached = _reason_flags(stop_reason)
+    defaults: dict[str, Any] = {"crashed": crashed, "reached_goal": reached}
+
+    def get(key: str) -> Any:
+        v = summary_value(summary, key)
+        return defaults.get(key, 0) if v is None else v
+
     return FlightRow(
         record=record,
         world=world,
-        navigation_distance_m=float(summary.get("navigation_distance_m", 0.0)),
-        navigation_time_s=float(summary.get("navigation_time_s", 0.0)),
-        crashed=bool(summary.get("crashed", crashed)),
-        total_reward=float(summary.get("total_reward", 0.0)),
-        reached_goal=bool(summary.get("reached_goal", reached)),
-        steps=int(summary.get("steps", 0)),
+        navigation_distance_m=float(get("navigation_distance_m")),
+        navigation_time_s=float(get("navigation_time_s")),
+        crashed=bool(get("crashed")),
+        total_reward=float(get("total_reward")),
+        reached_goal=bool(get("reached_goal")),
+        steps=int(get("steps")),
         stop_reason=stop_reason,
+        detail=str(summary.get("detail") or ""),
         complete=True,
         source="summary",
     )
@@ -135,8 +158,9 @@ def row_from_record(rec: FlightRecord) -> FlightRow:
     values: dict[str, Any] = {}
     used = set()
     for key in SUMMARY_KEYS:
-        if summary.get(key) is not None:
-            values[key] = summary[key]
+        v = summary_value(summary, key)
+        if v is not None:
+            values[key] = v
             used.add("summary")
         else:
             values[key] = computed[key]
@@ -152,19 +176,22 @@ def row_from_record(rec: FlightRecord) -> FlightRow:
         reached_goal=bool(values["reached_goal"]),
         steps=int(values["steps"]),
         stop_reason=reason,
+        detail=str(summary.get("detail") or ""),
         complete=rec.complete,
         source="+".join(s for s in ("summary", "steps") if s in used),
     )
 
 
 def format_row(row: FlightRow) -> str:
-    """One line, the paper's columns: ``distance 60.00 m  time 57.0 s  crash N  reward 12.15``."""
+    """One line, the paper's columns and the stop, exactly as the daemon prints it at the end::
+
+    navigation distance 60.00 m | time 57.0 s | crash no | total reward 12.150 | stop: goal_reached (...)
+    """
+    detail = f" ({row.detail})" if row.detail else ""
     return (
-        f"navigation distance {row.navigation_distance_m:.2f} m  "
-        f"navigation time {row.navigation_time_s:.1f} s  "
-        f"crash {'Y' if row.crashed else 'N'}  "
-        f"total reward {row.total_reward:.2f}  "
-        f"stop {row.stop_reason}"
+        f"navigation distance {row.navigation_distance_m:.2f} m | time {row.navigation_time_s:.1f} s | "
+        f"crash {'yes' if row.crashed else 'no'} | total reward {row.total_reward:.3f} | "
+        f"stop: {row.stop_reason}{detail}"
     )
 
 
