@@ -231,7 +231,7 @@ class Px4Emulator:
                 name = msg.get_type()
                 self.seen_message_types[name] = self.seen_message_types.get(name, 0) + 1
                 self.commands.handle(msg, link, now)
-        if self.faults.take_crash_request():
+        if self.faults.take_crash_request() or self.faults.active("crash", now) is not None:
             self.vehicle.crash(now, "crash injected by fault")
         elapsed = min(max(now - self._t_last_tick, 0.0), 10 * dt)  # a stalled thread loses time
         steps = max(1, math.ceil(elapsed / dt - 1e-9))

@@ -21,7 +21,7 @@ class FaultWindow:
     """One fault active on [start_mono_s, end_mono_s) (monotonic seconds)."""
 
     kind: str
-    """"drop_link", "delay_link" or "freeze_position"."""
+    """"drop_link", "delay_link", "freeze_position" or "crash"."""
     start_mono_s: float
     end_mono_s: float
     delay_s: float = 0.0
@@ -79,6 +79,10 @@ class Faults:
     def allow_mode(self, mode: str) -> None:
         with self._lock:
             self._denied.discard(mode)
+
+    def crash_at(self, start_s: float) -> FaultWindow:
+        """Crash the vehicle ``start_s`` seconds from now."""
+        return self._add("crash", start_s, math.inf)
 
     def crash_now(self) -> None:
         """Crash the vehicle at the next physics tick, as a collision would."""
