@@ -106,6 +106,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"quadnav-review: {exc}", file=sys.stderr)
             failed += 1
             continue
+        except Exception as exc:  # a record we did not foresee: still one line, never a traceback
+            print(f"quadnav-review: {path}: unreadable record: {type(exc).__name__}: {exc}", file=sys.stderr)
+            failed += 1
+            continue
         row = row_from_record(rec)
         records.append(rec)
         rows.append(row)

@@ -164,7 +164,8 @@ def row_from_record(rec: FlightRecord) -> FlightRow:
             used.add("summary")
         else:
             values[key] = computed[key]
-            used.add("steps")
+            if key not in ("crashed", "reached_goal"):  # these follow from the stop reason
+                used.add("steps")
     info = rec.info
     return FlightRow(
         record=rec.name,
