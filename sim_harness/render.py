@@ -182,119 +182,147 @@ def _index_range(
     return k_lo, k_hi
 
 
+@numba.njit(**_JIT)
+def _cast_item(
+    n, r_lo, r_hi, origins, rots, ty, tz, dty, dtz, kind, center, orot, half, bound_r, floor_z, ceiling_z,
+    max_t, out,
+):  # pragma: no cover - compiled
+    """Rows [r_lo, r_hi) of image n: the ray parameter (= z-depth) of the nearest hit, inf if none."""
+    n_row, n_col = out.shape[1], out.shape[2]
+    ox, oy, oz = origins[n, 0], origins[n, 1], origins[n, 2]
+    r = rots[n]
+    mm = np.empty((3, 3))  # per obstacle: the body axes in the obstacle frame, q.T @ r
+    # nearest first, so that pixels already nearer than an obstacle can skip it
+    near = np.empty(kind.shape[0])
+    for m in range(kind.shape[0]):
+        near[m] = (
+            r[0, 0] * (center[m, 0] - ox)
+            + r[1, 0] * (center[m, 1] - oy)
+            + r[2, 0] * (center[m, 2] - oz)
+            - bound_r[m]
+        )
+    order = np.argsort(near)
+    for i in range(r_lo, r_hi):
+        for j in range(n_col):
+            dz = r[2, 0] + ty[j] * r[2, 1] + tz[i] * r[2, 2]
+            t = np.inf
+            if oz <= floor_z or oz >= ceiling_z:
+                t = 0.0
+            elif dz < 0.0:
+                t = (floor_z - oz) / dz
+            elif dz > 0.0:
+                t = (ceiling_z - oz) / dz
+            out[n, i, j] = t
+    for m in order:
+        wx, wy, wz = center[m, 0] - ox, center[m, 1] - oy, center[m, 2] - oz
+        cx = r[0, 0] * wx + r[1, 0] * wy + r[2, 0] * wz  # centre in the camera (body) frame
+        cy = r[0, 1] * wx + r[1, 1] * wy + r[2, 1] * wz
+        cz = r[0, 2] * wx + r[1, 2] * wy + r[2, 2] * wz
+        br = bound_r[m]
+        if cx < -br or cx - br > max_t:
+            continue
+        q = orot[m]
+        for a in range(3):
+            for b in range(3):
+                mm[a, b] = q[0, a] * r[0, b] + q[1, a] * r[1, b] + q[2, a] * r[2, b]
+        k = kind[m]
+        h0, h1, h2 = half[m, 0], half[m, 1], half[m, 2]
+        # screen rectangle: slopes of the 8 corners of the oriented bounding box when they are
+        # all in front of the camera (exact for a convex hull), else the bounding sphere's cone
+        ok = k != 1
+        z_near = cx - br  # no point of the obstacle is nearer (z-depth) than this
+        sy_lo, sy_hi, sz_lo, sz_hi, z_obb = np.inf, -np.inf, np.inf, -np.inf, np.inf
+        if ok:
+            for corner in range(8):
+                e0 = h0 if corner & 1 else -h0
+                e1 = h1 if corner & 2 else -h1
+                e2 = h2 if corner & 4 else -h2
+                px = cx + mm[0, 0] * e0 + mm[1, 0] * e1 + mm[2, 0] * e2
+                if px < 1e-6:
+                    ok = False
+                    break
+                sy = (cy + mm[0, 1] * e0 + mm[1, 1] * e1 + mm[2, 1] * e2) / px
+                sz = (cz + mm[0, 2] * e0 + mm[1, 2] * e1 + mm[2, 2] * e2) / px
+                z_obb = min(z_obb, px)
+                sy_lo, sy_hi = min(sy_lo, sy), max(sy_hi, sy)
+                sz_lo, sz_hi = min(sz_lo, sz), max(sz_hi, sz)
+        if ok:
+            z_near = max(z_near, z_obb)
+            j0, j1 = _index_range(sy_lo, sy_hi, ty[0], dty, n_col)
+            i0, i1 = _index_range(sz_lo, sz_hi, tz[0], dtz, n_row)
+        else:
+            j0, j1 = _slope_range(cx, cy, br, ty[0], dty, n_col)
+            i0, i1 = _slope_range(cx, cz, br, tz[0], dtz, n_row)
+        i0, i1 = max(i0, r_lo), min(i1, r_hi)
+        if j0 >= j1 or i0 >= i1:
+            continue
+        # ray origin in the obstacle frame; ray directions from the body-axis images in mm
+        lo0 = -(q[0, 0] * wx + q[1, 0] * wy + q[2, 0] * wz)
+        lo1 = -(q[0, 1] * wx + q[1, 1] * wy + q[2, 1] * wz)
+        lo2 = -(q[0, 2] * wx + q[1, 2] * wy + q[2, 2] * wz)
+        for i in range(i0, i1):
+            b0 = mm[0, 0] + tz[i] * mm[0, 2]
+            b1 = mm[1, 0] + tz[i] * mm[1, 2]
+            b2 = mm[2, 0] + tz[i] * mm[2, 2]
+            for j in range(j0, j1):
+                if out[n, i, j] <= z_near:
+                    continue
+                t = _hit_t(
+                    k,
+                    lo0,
+                    lo1,
+                    lo2,
+                    b0 + ty[j] * mm[0, 1],
+                    b1 + ty[j] * mm[1, 1],
+                    b2 + ty[j] * mm[2, 1],
+                    h0,
+                    h1,
+                    h2,
+                )
+                if t < out[n, i, j]:
+                    out[n, i, j] = t
+
+
 @numba.njit(parallel=True, **_JIT)
-def _cast_kernel(
+def _cast_parallel(
     origins, rots, ty, tz, kind, center, orot, half, bound_r, floor_z, ceiling_z, max_t, n_band, out
 ):  # pragma: no cover - compiled
-    """Fill out (N, H, W) with the ray parameter (= z-depth) of the nearest hit, inf if none.
-
-    Work items are (pose, band of rows), ``n_band`` bands per image, run in parallel.
-    """
+    """Cast out (N, H, W): work items (pose, band of rows), ``n_band`` bands per image, in parallel."""
     n_pose, n_row, n_col = out.shape
     dty = ty[1] - ty[0] if n_col > 1 else -1.0
     dtz = tz[1] - tz[0] if n_row > 1 else -1.0
-    n_obs = kind.shape[0]
     for item in numba.prange(n_pose * n_band):
         n, band = item // n_band, item % n_band
-        r_lo, r_hi = band * n_row // n_band, (band + 1) * n_row // n_band
-        ox, oy, oz = origins[n, 0], origins[n, 1], origins[n, 2]
-        r = rots[n]
-        mm = np.empty((3, 3))  # per obstacle: the body axes in the obstacle frame, q.T @ r
-        # nearest first, so that pixels already nearer than an obstacle can skip it
-        near = np.empty(n_obs)
-        for m in range(n_obs):
-            near[m] = (
-                r[0, 0] * (center[m, 0] - ox)
-                + r[1, 0] * (center[m, 1] - oy)
-                + r[2, 0] * (center[m, 2] - oz)
-                - bound_r[m]
-            )
-        order = np.argsort(near)
-        for i in range(r_lo, r_hi):
-            for j in range(n_col):
-                dz = r[2, 0] + ty[j] * r[2, 1] + tz[i] * r[2, 2]
-                t = np.inf
-                if oz <= floor_z or oz >= ceiling_z:
-                    t = 0.0
-                elif dz < 0.0:
-                    t = (floor_z - oz) / dz
-                elif dz > 0.0:
-                    t = (ceiling_z - oz) / dz
-                out[n, i, j] = t
-        for m in order:
-            wx, wy, wz = center[m, 0] - ox, center[m, 1] - oy, center[m, 2] - oz
-            cx = r[0, 0] * wx + r[1, 0] * wy + r[2, 0] * wz  # centre in the camera (body) frame
-            cy = r[0, 1] * wx + r[1, 1] * wy + r[2, 1] * wz
-            cz = r[0, 2] * wx + r[1, 2] * wy + r[2, 2] * wz
-            br = bound_r[m]
-            if cx < -br or cx - br > max_t:
-                continue
-            q = orot[m]
-            for a in range(3):
-                for b in range(3):
-                    mm[a, b] = q[0, a] * r[0, b] + q[1, a] * r[1, b] + q[2, a] * r[2, b]
-            k = kind[m]
-            h0, h1, h2 = half[m, 0], half[m, 1], half[m, 2]
-            # screen rectangle: slopes of the 8 corners of the oriented bounding box when they are
-            # all in front of the camera (exact for a convex hull), else the bounding sphere's cone
-            ok = k != 1
-            z_near = cx - br  # no point of the obstacle is nearer (z-depth) than this
-            sy_lo, sy_hi, sz_lo, sz_hi, z_obb = np.inf, -np.inf, np.inf, -np.inf, np.inf
-            if ok:
-                for corner in range(8):
-                    e0 = h0 if corner & 1 else -h0
-                    e1 = h1 if corner & 2 else -h1
-                    e2 = h2 if corner & 4 else -h2
-                    px = cx + mm[0, 0] * e0 + mm[1, 0] * e1 + mm[2, 0] * e2
-                    if px < 1e-6:
-                        ok = False
-                        break
-                    sy = (cy + mm[0, 1] * e0 + mm[1, 1] * e1 + mm[2, 1] * e2) / px
-                    sz = (cz + mm[0, 2] * e0 + mm[1, 2] * e1 + mm[2, 2] * e2) / px
-                    z_obb = min(z_obb, px)
-                    sy_lo, sy_hi = min(sy_lo, sy), max(sy_hi, sy)
-                    sz_lo, sz_hi = min(sz_lo, sz), max(sz_hi, sz)
-            if ok:
-                z_near = max(z_near, z_obb)
-                j0, j1 = _index_range(sy_lo, sy_hi, ty[0], dty, n_col)
-                i0, i1 = _index_range(sz_lo, sz_hi, tz[0], dtz, n_row)
-            else:
-                j0, j1 = _slope_range(cx, cy, br, ty[0], dty, n_col)
-                i0, i1 = _slope_range(cx, cz, br, tz[0], dtz, n_row)
-            i0, i1 = max(i0, r_lo), min(i1, r_hi)
-            if j0 >= j1 or i0 >= i1:
-                continue
-            # ray origin in the obstacle frame; ray directions from the body-axis images in mm
-            lo0 = -(q[0, 0] * wx + q[1, 0] * wy + q[2, 0] * wz)
-            lo1 = -(q[0, 1] * wx + q[1, 1] * wy + q[2, 1] * wz)
-            lo2 = -(q[0, 2] * wx + q[1, 2] * wy + q[2, 2] * wz)
-            for i in range(i0, i1):
-                b0 = mm[0, 0] + tz[i] * mm[0, 2]
-                b1 = mm[1, 0] + tz[i] * mm[1, 2]
-                b2 = mm[2, 0] + tz[i] * mm[2, 2]
-                for j in range(j0, j1):
-                    if out[n, i, j] <= z_near:
-                        continue
-                    t = _hit_t(
-                        k,
-                        lo0,
-                        lo1,
-                        lo2,
-                        b0 + ty[j] * mm[0, 1],
-                        b1 + ty[j] * mm[1, 1],
-                        b2 + ty[j] * mm[2, 1],
-                        h0,
-                        h1,
-                        h2,
-                    )
-                    if t < out[n, i, j]:
-                        out[n, i, j] = t
+        _cast_item(n, band * n_row // n_band, (band + 1) * n_row // n_band, origins, rots, ty, tz, dty,
+                   dtz, kind, center, orot, half, bound_r, floor_z, ceiling_z, max_t, out)
 
 
-@numba.njit(parallel=True, **_JIT)
+@numba.njit(**_JIT)
+def _cast_serial(
+    origins, rots, ty, tz, kind, center, orot, half, bound_r, floor_z, ceiling_z, max_t, n_band, out
+):  # pragma: no cover - compiled
+    """As :func:`_cast_parallel` on the calling thread only (no thread-pool wake-ups)."""
+    n_pose, n_row, n_col = out.shape
+    dty = ty[1] - ty[0] if n_col > 1 else -1.0
+    dtz = tz[1] - tz[0] if n_row > 1 else -1.0
+    for n in range(n_pose):
+        _cast_item(n, 0, n_row, origins, rots, ty, tz, dty, dtz, kind, center, orot, half, bound_r,
+                   floor_z, ceiling_z, max_t, out)
+
+
+@numba.njit(**_JIT)
+def _to_mm(t, min_r, max_r, out):  # pragma: no cover - compiled
+    """Ray parameters (H, W) -> uint16 depth (mm, rounded) with 0 outside [min_r, max_r]."""
+    for i in range(t.shape[0]):
+        for j in range(t.shape[1]):
+            v = t[i, j]
+            out[i, j] = np.uint16(v * 1000.0 + 0.5) if min_r <= v <= max_r and v < 65.535 else 0
+
+
+@numba.njit(**_JIT)
 def _to_depth(t, min_r, max_r, out):  # pragma: no cover - compiled
     """Ray parameters (N, H, W) -> float32 depth with 0 outside [min_r, max_r]."""
-    for n in numba.prange(t.shape[0]):
+    for n in range(t.shape[0]):
         for i in range(t.shape[1]):
             for j in range(t.shape[2]):
                 v = t[n, i, j]
@@ -336,18 +364,24 @@ def cast_depth_m(
     rot_world_body: ArrayLike,
     camera: CameraModel,
     supersample: int = 1,
+    parallel: bool | None = None,
 ) -> NDArray[np.float64]:
     """Raw ray cast: z-depth (m) of the nearest surface, inf where nothing is hit, 0 inside a solid.
 
     ``pos_world_m`` (N, 3), ``rot_world_body`` (N, 3, 3) body->world; returns (N, H*s, W*s) float64.
+    ``parallel``: use numba's thread pool (default: for batches, N > 1). A single frame is cast on
+    the calling thread (GIL released): on a loaded machine, waking the pool costs more than it saves.
     """
     pos, rot = _poses(pos_world_m, np.asarray(rot_world_body, dtype=np.float64))
     ty, tz = camera.ray_slopes(supersample)
     out = np.empty((pos.shape[0], tz.size, ty.size))
-    # few poses (a camera frame): split each image into bands of rows so that all threads work
-    n_band = 1 if pos.shape[0] >= 4 * numba.get_num_threads() else min(tz.size, 4 * numba.get_num_threads())
+    if parallel is None:
+        parallel = pos.shape[0] > 1
+    # few poses in parallel: split each image into bands of rows so that all threads work
+    threads = numba.get_num_threads()
+    n_band = 1 if pos.shape[0] >= 4 * threads or not parallel else min(tz.size, 4 * threads)
     g = geometry
-    _cast_kernel(
+    (_cast_parallel if parallel else _cast_serial)(
         pos,
         rot,
         ty,
@@ -437,11 +471,13 @@ def render_frame_mm(
     """
     rot = quat_to_rotmat(np.asarray(quat_world_body, dtype=np.float64))
     t = cast_depth_m(world.geometry, np.asarray(pos_world_m, dtype=np.float64).reshape(1, 3), rot, camera)
+    if noise is None:
+        frame = np.empty(t.shape[1:], dtype=np.uint16)
+        _to_mm(t[0], camera.min_range_m, camera.max_range_m, frame)
+        return frame
+    if rng is None:
+        raise ValueError("render_frame_mm: a noise model needs an rng (numpy.random.Generator)")
     depth = np.empty(t.shape, dtype=np.float32)
     _to_depth(t, camera.min_range_m, camera.max_range_m, depth)
-    depth_m = depth[0]
-    if noise is not None:
-        if rng is None:
-            raise ValueError("render_frame_mm: a noise model needs an rng (numpy.random.Generator)")
-        depth_m = apply_depth_noise(depth_m, noise, rng, max_range_m=camera.max_range_m)
+    depth_m = apply_depth_noise(depth[0], noise, rng, max_range_m=camera.max_range_m)
     return np.rint(np.clip(depth_m, 0.0, 65.535) * 1000.0).astype(np.uint16)
