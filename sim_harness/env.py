@@ -150,15 +150,13 @@ class VecQuadNavEnv:
         return depth.astype(np.float32, copy=False), rel
 
     def _stop_at_contact(
-        self, world: World, ids: NDArray[np.int64], collided: NDArray, trail: NDArray, state: QuadState
+        self, world: World, ids: NDArray[np.int64], collided: NDArray, trail: NDArray
     ) -> None:
         for j in np.flatnonzero(collided):
             hits = np.flatnonzero(collides(world, trail[:, j], self.config.quad.radius_m))
             if hits.size:
-                state.pos_m[j] = trail[hits[0], j]
-                state.vel_m_s[j] = 0.0
-        self.pos_m[ids] = state.pos_m
-        self.vel_m_s[ids] = state.vel_m_s
+                self.pos_m[ids[j]] = trail[hits[0], j]
+                self.vel_m_s[ids[j]] = 0.0
 
     # -- API -------------------------------------------------------------------------------------
     def reset(self, mask: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -202,36 +200,46 @@ class VecQuadNavEnv:
         code = np.zeros(n, dtype=np.int8)
         progress = np.zeros(n)
         deviation = np.zeros(n)
-        for world, ids in self._groups(run):
-            path = world.path
-            k = self.steps[ids]
+        groups = self._groups(run)
+        all_ids = np.flatnonzero(run)
+        yaw0 = np.zeros(n)
+        d_prev = np.zeros(n)
+        for world, ids in groups:  # path terms at the start of the step
             pos0 = self.pos_m[ids]
-            arc0 = path.progress_m(pos0)
-            yaw = path.yaw_at(arc0)
-            d_prev = np.linalg.norm(path.setpoint_at(k * prims.duration_s) - pos0, axis=-1)
-            # the primitive, in the heading frame, from the last commanded end point (C1)
-            v0_h = world_to_body(self.cmd_vel_m_s[ids], yaw)
-            ctrl = prims.control_points(actions[ids], v0_h)  # (m, 4, 3)
-            disp_h = bezier_position(ctrl, self._u)  # (K, m, 3)
-            vel_h = bezier_velocity(ctrl, self._u, prims.duration_s)
-            targets = self.cmd_pos_m[ids] + body_to_world(disp_h, yaw)
-            target_vel = body_to_world(vel_h, yaw)
-            state, trail = track(QuadState(pos0, self.vel_m_s[ids]), targets, target_vel, cfg.quad)
-            self.pos_m[ids] = state.pos_m
-            self.vel_m_s[ids] = state.vel_m_s
-            self.cmd_pos_m[ids] = targets[-1]
-            self.cmd_vel_m_s[ids] = target_vel[-1]
-            self.steps[ids] = k + 1
+            yaw0[ids] = world.path.yaw_at(world.path.progress_m(pos0))
+            sp0 = world.path.setpoint_at(self.steps[ids] * prims.duration_s)
+            d_prev[ids] = np.linalg.norm(sp0 - pos0, axis=-1)
+        # the primitive, in the heading frame, from the last commanded end point (C1); one batched
+        # dynamics call for every running env
+        yaw = yaw0[all_ids]
+        v0_h = world_to_body(self.cmd_vel_m_s[all_ids], yaw)
+        ctrl = prims.control_points(actions[all_ids], v0_h)  # (m, 4, 3)
+        targets = self.cmd_pos_m[all_ids] + body_to_world(bezier_position(ctrl, self._u), yaw)  # (K, m, 3)
+        target_vel = body_to_world(bezier_velocity(ctrl, self._u, prims.duration_s), yaw)
+        state, trail_all = track(
+            QuadState(self.pos_m[all_ids], self.vel_m_s[all_ids]), targets, target_vel, cfg.quad
+        )
+        self.pos_m[all_ids] = state.pos_m
+        self.vel_m_s[all_ids] = state.vel_m_s
+        self.cmd_pos_m[all_ids] = targets[-1]
+        self.cmd_vel_m_s[all_ids] = target_vel[-1]
+        self.steps[all_ids] += 1
+        col = np.searchsorted(all_ids, np.arange(n))  # env id -> column in trail_all
+        for world, ids in groups:
+            path = world.path
+            trail = trail_all[:, col[ids]]
             collided = sweep_collides(world, trail, cfg.quad.radius_m)
             if collided.any():  # a crashed quad stops where it first touched
-                self._stop_at_contact(world, ids, collided, trail, state)
-            t = self._path_terms(ids, world, state.pos_m, k + 1)
-            d_now = np.linalg.norm(t["sp"] - state.pos_m, axis=-1)
+                self._stop_at_contact(world, ids, collided, trail)
+            pos = self.pos_m[ids]
+            k1 = self.steps[ids]
+            t = self._path_terms(ids, world, pos, k1)
+            d_now = np.linalg.norm(t["sp"] - pos, axis=-1)
             deviated = t["dev"] > cfg.reward.max_deviation_m
             goal = (t["goal_dist"] <= cfg.goal_radius_m) | (t["arc"] >= path.length_m - 1e-9)
-            timeout = (k + 1) >= cfg.max_steps
+            timeout = k1 >= cfg.max_steps
             code[ids] = _outcome_code(collided, deviated, goal, timeout)
-            rew[ids] = reward(d_prev, d_now, deviated, collided, cfg.reward)
+            rew[ids] = reward(d_prev[ids], d_now, deviated, collided, cfg.reward)
             progress[ids] = t["arc"]
             deviation[ids] = t["dev"]
             depth, rel = self._observe(ids, world, t["yaw"], t["sp"])

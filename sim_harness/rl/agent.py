@@ -36,10 +36,13 @@ class AgentConfig:
 class DQNAgent:
     """Online/target networks and their optimiser; ``torch`` seeded by the caller."""
 
-    def __init__(self, network: NetworkConfig, config: AgentConfig = AgentConfig()) -> None:
+    def __init__(
+        self, network: NetworkConfig, config: AgentConfig = AgentConfig(), device: str = "cpu"
+    ) -> None:
         self.config = config
-        self.q = DQN(network)
-        self.target = DQN(network)
+        self.device = torch.device(device)
+        self.q = DQN(network).to(self.device)
+        self.target = DQN(network).to(self.device)
         self.target.load_state_dict(self.q.state_dict())
         self.target.eval()
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
@@ -48,8 +51,11 @@ class DQNAgent:
     def greedy(self, depth: NDArray[np.float32], rel: NDArray[np.float32]) -> NDArray[np.int64]:
         """Arg-max actions (B,) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3)."""
         with torch.inference_mode():
-            q = self.q(torch.as_tensor(depth, dtype=torch.float32), torch.as_tensor(rel, dtype=torch.float32))
-        return q.argmax(dim=1).numpy().astype(np.int64)
+            q = self.q(self._t(depth), self._t(rel))
+        return q.argmax(dim=1).cpu().numpy().astype(np.int64)
+
+    def _t(self, a: NDArray) -> torch.Tensor:
+        return torch.as_tensor(a).to(self.device, non_blocking=True)
 
     def act(
         self,
@@ -67,14 +73,10 @@ class DQNAgent:
 
     def update(self, batch: Batch, gamma: float) -> float:
         """One gradient step of the Huber TD loss; returns the loss value."""
-        depth = torch.as_tensor(batch.depth)
-        rel = torch.as_tensor(batch.rel)
-        next_depth = torch.as_tensor(batch.next_depth)
-        next_rel = torch.as_tensor(batch.next_rel)
-        action = torch.as_tensor(batch.action)
-        reward = torch.as_tensor(batch.reward)
-        done = torch.as_tensor(batch.done)
-        discount = torch.as_tensor(np.power(gamma, batch.n, dtype=np.float32))
+        depth, rel = self._t(batch.depth), self._t(batch.rel)
+        next_depth, next_rel = self._t(batch.next_depth), self._t(batch.next_rel)
+        action, reward, done = self._t(batch.action), self._t(batch.reward), self._t(batch.done)
+        discount = self._t(np.power(gamma, batch.n, dtype=np.float32))
         with torch.no_grad():
             q_next_target = self.target(next_depth, next_rel)
             if self.config.double_dqn:
@@ -93,7 +95,15 @@ class DQNAgent:
         self.n_updates += 1
         if self.n_updates % self.config.target_update_interval == 0:
             self.target.load_state_dict(self.q.state_dict())
-        return float(loss.item())
+        return float(loss.detach().cpu())
+
+    def cpu_model(self) -> torch.nn.Module:
+        """The online network on the CPU (a copy if it lives elsewhere), for checkpoints."""
+        if self.device.type == "cpu":
+            return self.q
+        model = DQN(self.q.config)
+        model.load_state_dict({k: v.cpu() for k, v in self.q.state_dict().items()})
+        return model
 
     def state_dict(self) -> dict:
         """Everything needed to resume learning (weights, target, optimiser, update count)."""
@@ -107,5 +117,5 @@ class DQNAgent:
     def load_state_dict(self, state: dict) -> None:
         self.q.load_state_dict(state["q"])
         self.target.load_state_dict(state["target"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        self.optimizer.load_state_dict(state["optimizer"])  # moves its state to the params' device
         self.n_updates = int(state["n_updates"])

@@ -92,6 +92,11 @@ class TrainConfig:
     """Episodes between checkpoints (model + resumable training state)."""
     torch_threads: Annotated[int, pydantic.Field(ge=1)] = 1
     """torch.set_num_threads (1: on a loaded 2-core machine two OpenMP threads ran ~10x slower)."""
+    sim_threads: Annotated[int, pydantic.Field(ge=0)] = 1
+    """numba threads for rendering and collision (0 = numba's default, all cores; small batches
+    of envs run faster on one)."""
+    device: str = "cpu"
+    """torch device of the learner ("cpu", "cuda"); the env always runs on the CPU."""
     out_dir: str = "runs"
     """Parent folder of run directories."""
 

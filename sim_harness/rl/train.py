@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import torch
 from tqdm import tqdm
@@ -75,7 +76,7 @@ def _save_model(path: Path, agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfi
     meta = {"train_config": cfg.to_dict(), "seed": cfg.seed, "git_commit": git_commit(), **extra}
     return save_checkpoint(
         path,
-        agent.q,
+        agent.cpu_model(),
         primitives=json.loads(json.dumps(dataclasses.asdict(env_cfg.primitives))),
         preprocess=dataclasses.asdict(env_cfg.preprocess),
         meta=meta,
@@ -106,6 +107,8 @@ def train(
         run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
         (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
     torch.set_num_threads(cfg.torch_threads)
+    if cfg.sim_threads > 0:
+        numba.set_num_threads(min(cfg.sim_threads, numba.config.NUMBA_NUM_THREADS))
     torch.manual_seed(cfg.seed)
     env_cfg = env_config_for(cfg)
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
@@ -114,6 +117,7 @@ def train(
     agent = DQNAgent(
         network_config_for(cfg),
         AgentConfig(cfg.learning_rate, cfg.double_dqn, cfg.target_update_interval, cfg.max_grad_norm),
+        device=cfg.device,
     )
     kd, kp = cfg.depth_history, cfg.position_history
     buffer = ReplayBuffer(cfg.buffer_size, (kd, 32, 32), (kp, 3), seed=cfg.seed + 1)
