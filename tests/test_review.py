@@ -123,3 +123,23 @@ def test_bad_records_give_one_line_errors_and_the_rest_is_reviewed(flights, tmp_
     assert "no such file" in lines[0] and "not an MCAP file" in lines[1]
     assert "stub.mcap" in lines[2] and "no .mcap records" in lines[3]
     assert "Traceback" not in err and "ok.mcap" in out
+
+
+def test_world_file_is_drawn_when_the_record_has_none(tmp_path, capsys):
+    """--world adds a world to a record without one (real flights); a bad world file is a usage error."""
+    path = tmp_path / "real.mcap"
+    with FlightRecorder(path, metadata={"model_sha256": "ab"}) as rec:
+        rec.odometry(1.0, [0, 0, 1], [1, 0, 0, 0])
+        rec.close("operator_stop", {}, t_mono_s=2.0)
+    world = tmp_path / "arena.yaml"
+    world.write_text(
+        "name: arena\npath: {waypoints: [[0, 0, 1], [3.5, 0, 1]]}\nobstacles:\n"
+        "  - {type: box, center: [2, 0, 1], size: [0.5, 1, 2]}\n"
+    )
+    out = tmp_path / "r.html"
+    assert main([str(path), "--world", str(world), "--html", str(out), "-q"]) == 0
+    assert "quadnav.world_yaml" in out.read_text() and "type: box" in out.read_text()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("- not a mapping\n")
+    assert main([str(path), "--world", str(bad)]) == 2
+    assert "a world file must be a YAML mapping" in capsys.readouterr().err

@@ -4,6 +4,7 @@
     quadnav-review records/ a.mcap b.mcap      # the paper's table with success/collision-free rates
     quadnav-review RECORD.mcap --json          # the same as JSON, for scripts
     quadnav-review RECORD.mcap --html out.html # a self-contained report (plots inline)
+    quadnav-review RECORD.mcap --html out.html --world arena.yaml  # draw this world if none recorded
 
 A folder argument stands for the ``*.mcap`` files in it. Exit status: 0 all records read,
 1 a record could not be read (one line each on stderr, the others are still reviewed), 2 usage.
@@ -44,7 +45,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print rows and rates as JSON")
     p.add_argument("--html", metavar="OUT.html", help="write a self-contained HTML report")
     p.add_argument("--quiet", "-q", action="store_true", help="no warnings, only the row/table")
+    p.add_argument(
+        "--world",
+        metavar="WORLD.yaml",
+        help="world file to draw in the report when a record carries none (e.g. a real flight's arena)",
+    )
     return p
+
+
+def _world_yaml(path: str) -> str:
+    """The text of a world file, checked to be a YAML mapping; RecordError (one line) otherwise."""
+    from quadnav_onboard.config import ConfigError, load_yaml
+
+    try:
+        data = load_yaml(path)
+    except ConfigError as exc:
+        raise RecordError(str(exc)) from None
+    if not isinstance(data, dict):
+        raise RecordError(f"{path}: a world file must be a YAML mapping")
+    return Path(path).read_text(encoding="utf-8")
 
 
 def _expand(args: list[str]) -> list[Path]:
@@ -91,6 +110,13 @@ def _row_json(rec: FlightRecord, row: FlightRow, warns: list[str]) -> dict[str, 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    world_text = None
+    if args.world:
+        try:
+            world_text = _world_yaml(args.world)
+        except RecordError as exc:
+            print(f"quadnav-review: --world: {exc}", file=sys.stderr)
+            return 2
     records: list[FlightRecord] = []
     rows: list[FlightRow] = []
     warnings: list[list[str]] = []
@@ -110,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"quadnav-review: {path}: unreadable record: {type(exc).__name__}: {exc}", file=sys.stderr)
             failed += 1
             continue
+        if world_text is not None and "world_yaml" not in rec.info:
+            rec.metadata.setdefault("quadnav", {})["world_yaml"] = world_text
         row = row_from_record(rec)
         records.append(rec)
         rows.append(row)

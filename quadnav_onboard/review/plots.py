@@ -42,6 +42,12 @@ plt.rcParams.update({"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "fig
 _OBST = {"facecolor": "#9aa4b1", "edgecolor": "#4a5361", "alpha": 0.6, "lw": 1}
 
 
+def _legend(ax: Any, **kw: Any) -> None:
+    """A legend only when something is labelled (an empty one warns)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kw)
+
+
 def t_zero(rec: FlightRecord) -> float:
     """Time origin (monotonic s) of the plots: the first decision, else the first odometry."""
     if rec.steps:
@@ -139,7 +145,7 @@ def fig_trajectory(rec: FlightRecord) -> Figure:
         ax.set_ylabel("y (m, left)" if view == "top" else "z (m, up)")
         ax.set_title("Top view" if view == "top" else "Side view")
         ax.set_aspect("equal", adjustable="datalim")
-    axes[0].legend(loc="upper left", fontsize=8, ncol=4, framealpha=0.9)
+    _legend(axes[0], loc="upper left", fontsize=8, ncol=4, framealpha=0.9)
     return fig
 
 
@@ -189,7 +195,7 @@ def fig_tracking(rec: FlightRecord) -> tuple[Figure, float]:
                 label="moving setpoint",
             )
         ax.set_ylabel(name)
-    axes[0].legend(loc="upper left", fontsize=8, ncol=3)
+    _legend(axes[0], loc="upper left", fontsize=8, ncol=3)
     ax = axes[3]
     if len(rec.setpoint_t_s) > 1 and len(rec.odom_t_s) > 1:
         sp_at = np.stack(
@@ -203,7 +209,7 @@ def fig_tracking(rec: FlightRecord) -> tuple[Figure, float]:
         )
     ax.set_ylabel("error (m)")
     ax.set_xlabel("time since first decision (s)")
-    ax.legend(loc="upper left", fontsize=8, ncol=2)
+    _legend(ax, loc="upper left", fontsize=8, ncol=2)
     axes[0].set_title(f"Setpoint tracking — flown path lags the commanded one by ≈ {lag:.2f} s")
     return fig, lag
 
@@ -244,7 +250,7 @@ def fig_decisions(rec: FlightRecord) -> Figure:
     ax.set_yticklabels([_action_label(a) for a in range(q.shape[1])], fontsize=7, family="monospace")
     ax.set_ylabel("action (F fwd, L/R left/right, U/D up/down)")
     ax.set_title("Q-values per decision (colour) and the chosen primitive (red ring)")
-    ax.legend(loc="upper right", fontsize=8)
+    _legend(ax, loc="upper right", fontsize=8)
     fig.colorbar(im, ax=ax, label="Q-value", pad=0.01)
     axes[1].bar(steps, rec.step_array("reward"), color="#2ca02c")
     axes[1].set_ylabel("reward")
@@ -257,7 +263,7 @@ def fig_decisions(rec: FlightRecord) -> Figure:
     )
     axes[2].set_ylabel("m")
     axes[2].set_xlabel("decision step")
-    axes[2].legend(loc="upper left", fontsize=8)
+    _legend(axes[2], loc="upper left", fontsize=8)
     return fig
 
 
@@ -366,7 +372,7 @@ def fig_modes(rec: FlightRecord) -> Figure:
     ax.set_xlabel("time since first decision (s)")
     ax.set_title("Vehicle mode / armed (dark = armed) and events")
     if seen:
-        ax.legend(loc="upper right", fontsize=8, ncol=len(seen))
+        _legend(ax, loc="upper right", fontsize=8, ncol=len(seen))
     return fig
 
 
@@ -412,5 +418,5 @@ def fig_overlay(records: Sequence[FlightRecord]) -> Figure:
     ax.set_ylabel("y (m, left)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title("All flights, top view (X = crash)")
-    ax.legend(fontsize=8, loc="upper left", ncol=3)
+    _legend(ax, fontsize=8, loc="upper left", ncol=3)
     return fig

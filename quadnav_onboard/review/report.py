@@ -118,7 +118,8 @@ def _flight_section(rec: FlightRecord, row: FlightRow, warnings: Sequence[str]) 
     stop = rec.stop or {}
     dropped = {k: v for k, v in (stop.get("dropped") or {}).items() if v}
     out.append(
-        f"<p>Stopped because: <b>{_e(row.stop_reason)}</b> · {row.steps} decisions · "
+        f"<p>Stopped because: <b>{_e(row.stop_reason)}</b>{' (' + _e(row.detail) + ')' if row.detail else ''}"
+        f" · {row.steps} decisions · "
         f"record {'complete' if rec.complete else 'CUT OFF: ' + _e(rec.problem or '')} · "
         f"dropped: {_e(dropped or 'none')} · model {_e(rec.info.get('model_sha256', '?')[:12])}</p>"
     )
