@@ -69,7 +69,11 @@ class Recorder(Protocol):
     def step(self, t_mono_s: float, **decision: Any) -> None: ...
     def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None: ...
     def event(self, t_mono_s: float, kind: str, message: str, **fields: Any) -> None: ...
-    def close(self, stop_reason: str, summary: Mapping[str, Any]) -> None: ...
+    def rough_path(self, t_mono_s: float, waypoints_m: ArrayLike) -> None: ...
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None: ...
+    def close(
+        self, stop_reason: str, summary: Mapping[str, Any] | None = None, *, t_mono_s: float | None = None
+    ) -> None: ...
 
 
 class NullRecorder:
@@ -261,8 +265,9 @@ class FlightRecorder:
 
     def depth(self, t_mono_s: float, depth_mm: np.ndarray) -> None:
         """A raw depth frame (uint16 mm, (H, W), 0 = invalid); 1 in ``depth_decimation`` is kept."""
-        n = self._depth_seen
-        self._depth_seen += 1
+        with self._cond:
+            n = self._depth_seen
+            self._depth_seen += 1
         if self.depth_decimation == 0 or n % self.depth_decimation:
             return
         self._put("depth", t_mono_s, np.array(depth_mm, dtype=np.uint16, copy=True), image=True)
