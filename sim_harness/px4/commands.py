@@ -63,7 +63,8 @@ class CommandHandler:
         self.params: dict[str, tuple[float, int]] = {
             "MIS_TAKEOFF_ALT": (cfg.takeoff_alt_m, m.MAV_PARAM_TYPE_REAL32),
             "COM_OF_LOSS_T": (cfg.com_of_loss_t_s, m.MAV_PARAM_TYPE_REAL32),
-            "COM_OBL_RC_ACT": (1.0 if cfg.offboard_loss_action == "hold" else 2.0, m.MAV_PARAM_TYPE_INT32),
+            # PX4 COM_OBL_RC_ACT: 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold.
+            "COM_OBL_RC_ACT": (5.0 if cfg.offboard_loss_action == "hold" else 4.0, m.MAV_PARAM_TYPE_INT32),
             "MPC_LAND_SPEED": (cfg.land_speed_m_s, m.MAV_PARAM_TYPE_REAL32),
             "COM_DISARM_LAND": (cfg.land_disarm_s, m.MAV_PARAM_TYPE_REAL32),
             "SYS_HITL": (0.0, m.MAV_PARAM_TYPE_INT32),
