@@ -1,0 +1,510 @@
+"""The flight daemon: startup -> preflight -> wait for go -> take-off -> mission -> stop -> shutdown.
+
+One ``asyncio.TaskGroup`` holds the data-flow tasks (see :mod:`quadnav_onboard.daemon.loops`):
+depth ingest and odometry ingest (latest value wins), vehicle telemetry, the 20 Hz setpoint
+streamer and the supervisor. The lifecycle runs in the group's body and always ends in
+:meth:`FlightDaemon._respond`, which leaves the vehicle holding, landed, or (pilot takeover, link
+loss) untouched. The DQN runs in a one-thread executor so the loop never stalls.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import signal
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.daemon.loops import Loops
+from quadnav_onboard.daemon.mission import ActivePrimitive, RampTrajectory, goal_reached, step_inputs
+from quadnav_onboard.daemon.summary import FlightSummary, SafeRecorder
+from quadnav_onboard.daemon.supervisor import (
+    PreflightCheck,
+    PreflightError,
+    Response,
+    StopReason,
+    check_depth_frame,
+    check_odometry,
+    check_start_inside,
+    check_vehicle_ready,
+    response_for,
+)
+from quadnav_onboard.logs import get_logger
+from quadnav_onboard.observation import ObservationHistory
+from quadnav_onboard.path import RoughPath
+from quadnav_onboard.policy import Policy
+from quadnav_onboard.preprocess import preprocess_depth_mm
+from quadnav_onboard.reward import reward
+from quadnav_onboard.sources.base import DepthSource, OdometrySource
+from quadnav_onboard.vehicle import VehicleError, VehicleLink
+
+__all__ = ["FlightDaemon"]
+
+log = get_logger("quadnav.daemon")
+
+
+class FlightDaemon(Loops):
+    """Fly one mission. Build with sources, a vehicle link and a policy; ``await run()``."""
+
+    def __init__(
+        self,
+        cfg: FlightConfig,
+        *,
+        path: RoughPath,
+        policy: Policy,
+        depth: DepthSource,
+        odometry: OdometrySource,
+        vehicle: VehicleLink,
+        recorder: Any = None,
+        crash_probe: Callable[[], bool] | None = None,
+        notifier: Any = None,
+        trigger: Any = None,
+    ) -> None:
+        super().__init__(cfg, vehicle=vehicle, recorder=SafeRecorder(recorder), notifier=notifier)
+        self.path = path
+        self.policy = policy
+        self.depth_source = depth
+        self.odometry_source = odometry
+        self.crash_probe = crash_probe
+        self.trigger = trigger
+        self.prims = (cfg.primitives or policy.primitive_config()).build()
+        self.preprocess_cfg = cfg.preprocess or policy.preprocess_config()
+        self.history = ObservationHistory(policy.depth_history, policy.position_history)
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqn")
+        self.flying = False
+        self.total_reward = 0.0
+        self.steps = 0
+        self.t_mission_start_mono_s = math.nan
+        self.t_mission_end_mono_s = math.nan
+        self._signals = 0
+        self._forced = False
+        self._main_task: asyncio.Task[Any] | None = None
+        self._hold_task: asyncio.Task[Any] | None = None
+        self._background: list[asyncio.Task[Any]] = []
+
+    # --- entry point ---------------------------------------------------------------------------
+
+    async def run(self) -> FlightSummary:
+        """Fly; never raises for flight problems: the outcome is in the returned summary."""
+        self._main_task = asyncio.current_task()
+        loop = asyncio.get_running_loop()
+        installed = self._install_signals(loop)
+        try:
+            async with contextlib.AsyncExitStack() as stack:
+                await stack.enter_async_context(self.depth_source)
+                await stack.enter_async_context(self.odometry_source)
+                stack.push_async_callback(self.vehicle.close)
+                async with asyncio.TaskGroup() as tg:
+                    background = [
+                        tg.create_task(self.ingest_depth(), name="depth"),
+                        tg.create_task(self.ingest_odometry(), name="odometry"),
+                        tg.create_task(self.supervise(), name="supervisor"),
+                        tg.create_task(self.stream_setpoints(), name="setpoints"),
+                    ]
+                    self._background = background
+                    try:
+                        await self._lifecycle(tg)
+                    finally:
+                        for task in background:
+                            task.cancel()
+        except asyncio.CancelledError:
+            if not self._forced:
+                raise
+            log.warning("forced_exit", reason=self.stop_reason.value if self.stop_reason else None)
+            if self._hold_task is not None:
+                with contextlib.suppress(Exception, asyncio.CancelledError):
+                    await asyncio.wait_for(self._hold_task, 1.0)
+        except Exception as exc:  # a source that cannot even open, or a bug
+            log.exception("daemon_error", error=str(exc))
+            self.request_stop(StopReason.INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
+        finally:
+            for sig in installed:
+                loop.remove_signal_handler(sig)
+            self._executor.shutdown(wait=False, cancel_futures=True)
+        return self._finish()
+
+    def _install_signals(self, loop: asyncio.AbstractEventLoop) -> list[int]:
+        installed = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.add_signal_handler(sig, self.handle_signal, sig)
+                installed.append(sig)
+            except (RuntimeError, ValueError, NotImplementedError):  # not the main thread
+                pass
+        return installed
+
+    def handle_signal(self, signum: int) -> None:
+        """First SIGINT/SIGTERM: stop (hold, land, flush). Second: command hold and exit now."""
+        self._signals += 1
+        name = signal.Signals(signum).name
+        if self._signals == 1:
+            log.warning("signal", signal=name, action="stop: hold then land")
+            self.request_stop(StopReason.OPERATOR_STOP, f"{name} received")
+            return
+        log.warning("signal", signal=name, action="forced exit after commanding hold")
+        self._forced = True
+        self.streaming = False
+        if self.flying:
+            self._hold_task = asyncio.ensure_future(self._quiet(self.vehicle.hold()))
+        if self._main_task is not None:
+            self._main_task.cancel()
+
+    @staticmethod
+    async def _quiet(coro: Any) -> None:
+        try:
+            await coro
+        except VehicleError as exc:
+            log.error("vehicle_command_failed", error=str(exc))
+
+    # --- lifecycle -----------------------------------------------------------------------------
+
+    async def _lifecycle(self, tg: asyncio.TaskGroup) -> None:
+        try:
+            await self._connect(tg)
+            await self._until_stopped(self._preflight())
+            if self.stop_reason is not None:
+                return
+            self.notifier.ready()
+            self.notifier.status("preflight passed; waiting for go")
+            await self._until_stopped(self._wait_for_go())
+            if self.stop_reason is None:
+                await self._until_stopped(self._takeoff())
+            if self.stop_reason is None:
+                await self._until_stopped(self._mission())
+        except PreflightError as exc:
+            self.request_stop(StopReason.PREFLIGHT_FAILED, str(exc))
+        except VehicleError as exc:
+            self.request_stop(StopReason.VEHICLE_ERROR, str(exc))
+        except Exception as exc:
+            log.exception("lifecycle_error", error=str(exc))
+            self.request_stop(StopReason.INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
+        finally:
+            await self._respond()
+
+    async def _until_stopped(self, coro: Any) -> None:
+        """Run ``coro`` until it returns or a stop is requested (then cancel it)."""
+        task = asyncio.ensure_future(coro)
+        stop = asyncio.ensure_future(self.stop_event.wait())
+        try:
+            await asyncio.wait({task, stop}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stop.cancel()
+            if not task.done():
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        if task.done() and not task.cancelled() and task.exception() is not None:
+            raise task.exception()  # type: ignore[misc]
+
+    async def _connect(self, tg: asyncio.TaskGroup) -> None:
+        self.phase = "connect"
+        await self.vehicle.connect()
+        self._background.append(tg.create_task(self.watch_vehicle(), name="telemetry"))
+
+    async def _preflight(self) -> None:
+        """Every check must pass before anything arms; the first failure names itself."""
+        self.phase = "preflight"
+        cfg = self.cfg
+        model_check = self._check_model()
+        log.info("preflight_check", check=model_check.name, ok=model_check.ok, detail=model_check.detail)
+        if not model_check.ok:
+            raise PreflightError(model_check)
+        deadline = time.monotonic() + cfg.vehicle.health_timeout_s
+        while True:
+            now = time.monotonic()
+            checks = [
+                check_depth_frame(
+                    self.latest_depth.value, now, cfg.safety.stale_depth_s, self.preprocess_cfg
+                ),
+                check_odometry(self.latest_odom.value, now, cfg.safety.stale_odometry_s),
+                check_vehicle_ready(self.vehicle.state),
+                check_start_inside(self.path.start_m, cfg.safety),
+            ]
+            failed = [c for c in checks if not c.ok]
+            if not failed:
+                for c in checks:
+                    log.info("preflight_check", check=c.name, ok=True, detail=c.detail)
+                self.recorder.event(now, "preflight", "all checks passed")
+                return
+            hard = [c for c in failed if c.name == "path" or "already armed" in c.detail]
+            if hard or now > deadline:
+                raise PreflightError((hard or failed)[0])
+            await asyncio.sleep(0.05)
+
+    def _check_model(self) -> PreflightCheck:
+        pol = self.policy
+        if pol.n_actions != self.prims.n_actions:
+            return PreflightCheck(
+                "model",
+                False,
+                f"model has {pol.n_actions} outputs, the action set has {self.prims.n_actions}",
+            )
+        depth = np.ones((pol.depth_history, 32, 32), np.float32)
+        rel = np.zeros((pol.position_history, 3), np.float32)
+        try:
+            _, q = pol.act(depth, rel)
+        except Exception as exc:
+            return PreflightCheck("model", False, f"test inference failed: {exc}")
+        if q.shape != (self.prims.n_actions,) or not np.all(np.isfinite(q)):
+            return PreflightCheck(
+                "model", False, f"test inference gave Q-values of shape {q.shape} / non-finite"
+            )
+        sha = pol.checkpoint.sha256[:12]
+        return PreflightCheck("model", True, f"{pol.n_actions} actions, sha256 {sha}")
+
+    async def _wait_for_go(self) -> None:
+        self.phase = "wait_for_go"
+        if self.trigger is None:
+            return
+        from quadnav_onboard.trigger import wait_for_go
+
+        go = await wait_for_go(self.trigger, mode_stream=self.mode_stream(), heartbeat=self.notifier.watchdog)
+        log.info("go", mode=go.mode, detail=getattr(go, "detail", ""))
+
+    async def _takeoff(self) -> None:
+        """Stream a setpoint at the ground position, arm, switch to offboard, ramp to the path start."""
+        self.phase = "takeoff"
+        cfg = self.cfg.mission
+        odom = self.latest_odom.value
+        assert odom is not None
+        yaw0 = float(self.path.yaw_at(0.0))
+        ground = np.asarray(odom.pos_world_m, dtype=np.float64)
+        self.trajectory = RampTrajectory(
+            ground[None].repeat(2, 0), cfg.takeoff_speed_m_s, yaw0, time.monotonic()
+        )
+        self.streaming = True
+        await asyncio.sleep(3.0 / self.cfg.vehicle.setpoint_rate_hz)
+        self.flying = True
+        await self.vehicle.arm()
+        await self.vehicle.start_offboard()
+        self.supervising = True
+        ramp = RampTrajectory.takeoff(
+            ground, self.path.start_m, cfg.takeoff_speed_m_s, yaw0, time.monotonic()
+        )
+        self.trajectory = ramp
+        self.new_trajectory.set()
+        log.info("takeoff", ground_m=np.round(ground, 2).tolist(), start_m=self.path.start_m.tolist())
+        deadline = time.monotonic() + cfg.takeoff_timeout_s
+        while True:
+            pos = self.latest_odom.value.pos_world_m  # type: ignore[union-attr]
+            done = time.monotonic() >= ramp.t_start_mono_s + self._ramp_duration(ramp)
+            if done and float(np.linalg.norm(pos - self.path.start_m)) <= cfg.start_tolerance_m:
+                return
+            if time.monotonic() > deadline:
+                self.request_stop(
+                    StopReason.TAKEOFF_TIMEOUT, f"path start not reached in {cfg.takeoff_timeout_s} s"
+                )
+                return
+            await asyncio.sleep(0.05)
+
+    @staticmethod
+    def _ramp_duration(ramp: RampTrajectory) -> float:
+        lengths = np.linalg.norm(np.diff(ramp.points_world_m, axis=0), axis=1)
+        return float(lengths.sum()) / ramp.speed_m_s
+
+    # --- mission -------------------------------------------------------------------------------
+
+    def _decide(self, depth_mm: np.ndarray, rel: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+        """Executor thread: preprocess the newest frame, push the observation, run the DQN."""
+        depth_in = preprocess_depth_mm(depth_mm, self.preprocess_cfg)
+        self.history.push(depth_in, rel)
+        action, q = self.policy.act(*self.history.arrays())
+        return action, q, depth_in
+
+    async def _mission(self) -> None:
+        self.phase = "mission"
+        self.in_mission = True
+        loop = asyncio.get_running_loop()
+        duration = self.prims.duration_s
+        t0 = time.monotonic()
+        self.t_mission_start_mono_s = t0
+        start = self.trajectory.end_world_m  # commanded end of the take-off ramp
+        end_world, end_vel = np.asarray(start, dtype=np.float64), np.zeros(3)
+        pending: dict[str, Any] | None = None
+        self.notifier.status("mission")
+        k = 0
+        while True:
+            await asyncio.sleep(max(0.0, t0 + k * duration - time.monotonic()))
+            odom = self.latest_odom.value
+            pos = np.asarray(odom.pos_world_m, dtype=np.float64)  # type: ignore[union-attr]
+            inputs = step_inputs(self.path, k, duration, pos)
+            if pending is not None:
+                self._finish_step(pending, pos, inputs.distance_m)
+                pending = None
+            self.steps = k
+            if goal_reached(self.path, pos, self.cfg.mission.goal_radius_m):
+                self.request_stop(StopReason.GOAL_REACHED, f"goal reached after {k} steps")
+                return
+            if k >= self.cfg.mission.max_steps:
+                self.request_stop(StopReason.STEP_LIMIT, f"{k} steps = mission.max_steps")
+                return
+            frame = self.latest_depth.value
+            t_decide = time.monotonic()
+            self.t_decision_start = t_decide
+            action, q, depth_in = await loop.run_in_executor(
+                self._executor,
+                self._decide,
+                frame.depth_mm,
+                inputs.rel_pos_body_m,  # type: ignore[union-attr]
+            )
+            self.t_decision_start = None
+            self.last_inference_s = time.monotonic() - t_decide
+            prim = ActivePrimitive(self.prims, action, end_world, end_vel, inputs.yaw_rad, time.monotonic())
+            self.decision_t = t_decide
+            self.trajectory = prim
+            self.new_trajectory.set()
+            end_world, end_vel = prim.end_world_m, prim.end_vel_world_m_s
+            self.recorder.network_input(t_decide, k, depth_in)
+            pending = {
+                "t": t_decide,
+                "step": k,
+                "action": action,
+                "q": q,
+                "inputs": inputs,
+                "pos": pos,
+                "frame_age_s": t_decide - frame.t_capture_mono_s,  # type: ignore[union-attr]
+            }
+            log.info(
+                "step",
+                step=k,
+                action=action,
+                q_max=round(float(q.max()), 4),
+                q_values=np.round(q, 3).tolist(),
+                pos_m=np.round(pos, 2).tolist(),
+                rel_m=np.round(inputs.rel_pos_body_m, 2).tolist(),
+                progress_m=round(float(self.path.progress_m(pos)), 2),
+                inference_ms=round(self.last_inference_s * 1e3, 2),
+                frame_age_ms=round(pending["frame_age_s"] * 1e3, 1),
+            )
+            k += 1
+            self.pending_step = pending
+
+    def _finish_step(
+        self, p: dict[str, Any], pos: np.ndarray, d_now_m: float, collided: bool = False
+    ) -> None:
+        """Reward of one executed step, exactly as in training, and its record."""
+        dev = float(self.path.deviation_m(pos))
+        deviated = dev > self.cfg.reward.max_deviation_m
+        r = float(reward(p["inputs"].distance_m, d_now_m, deviated, collided, self.cfg.reward))
+        self.total_reward += r
+        self.steps = p["step"] + 1
+        self.pending_step = None
+        self.recorder.step(
+            p["t"],
+            step=p["step"],
+            action=p["action"],
+            q_values=p["q"],
+            rel_pos_body_m=p["inputs"].rel_pos_body_m,
+            moving_setpoint_world_m=p["inputs"].setpoint_world_m,
+            pos_world_m=p["pos"],
+            reward=r,
+            reward_terms={
+                "d_prev_m": p["inputs"].distance_m,
+                "d_now_m": d_now_m,
+                "deviated": deviated,
+                "collided": collided,
+            },
+            progress_m=float(self.path.progress_m(pos)),
+            deviation_m=dev,
+            latency_ms=self.decision_latency_last_s * 1e3,
+        )
+
+    # --- stop ----------------------------------------------------------------------------------
+
+    async def _respond(self) -> None:
+        """The response ladder: stop streaming; hold; land (if configured); disarm (if configured)."""
+        if self.stop_reason is None:
+            self.request_stop(StopReason.INTERNAL_ERROR, "lifecycle ended without a stop reason")
+        reason = self.stop_reason
+        assert reason is not None
+        self.phase = "stop"
+        self.t_mission_end_mono_s = time.monotonic()
+        self.streaming = False
+        self.supervising = False
+        self.trajectory = None
+        self._close_partial_step(reason)
+        if not self.flying:
+            return
+        if response_for(reason) is Response.RELEASE:
+            log.warning("stop_release", reason=reason.value, detail="not commanding: pilot/PX4 in charge")
+            self.recorder.event(
+                time.monotonic(), "release", "stopped commanding the vehicle", reason=reason.value
+            )
+            return
+        await self.command_hold()
+        land = (
+            self.cfg.mission.land_at_goal
+            if reason is StopReason.GOAL_REACHED
+            else self.cfg.safety.land_on_abort
+        )
+        if not land:
+            return
+        await asyncio.sleep(self.cfg.safety.hold_before_land_s)
+        if self.vehicle.state.mode not in ("HOLD", "OFFBOARD") and self.vehicle.state.armed:
+            log.warning("land_skipped", mode=self.vehicle.state.mode, detail="pilot took over during hold")
+            return
+        await self._ladder_step("land", self.vehicle.land)
+        await self._wait_landed()
+        if (
+            self.cfg.safety.disarm_on_abort
+            and reason is not StopReason.GOAL_REACHED
+            and self.vehicle.state.armed
+        ):
+            await self._ladder_step("disarm", self.vehicle.disarm)
+
+    async def _ladder_step(self, name: str, fn: Callable[[], Any]) -> None:
+        t = time.monotonic()
+        log.warning("ladder", step=name, reason=self.stop_reason.value if self.stop_reason else None)
+        self.recorder.event(t, "ladder", name)
+        try:
+            await fn()
+        except VehicleError as exc:
+            log.error("ladder_failed", step=name, error=str(exc))
+            self.recorder.event(time.monotonic(), "ladder_failed", f"{name}: {exc}")
+
+    async def _wait_landed(self) -> None:
+        deadline = time.monotonic() + self.cfg.safety.land_timeout_s
+        while time.monotonic() < deadline:
+            st = self.vehicle.state
+            if not st.armed or st.landed:
+                log.info("landed", armed=st.armed)
+                self.recorder.event(time.monotonic(), "landed", "on the ground", armed=st.armed)
+                return
+            await asyncio.sleep(0.05)
+        log.error("land_timeout", timeout_s=self.cfg.safety.land_timeout_s)
+
+    def _close_partial_step(self, reason: StopReason) -> None:
+        p = self.pending_step
+        odom = self.latest_odom.value
+        if p is None or odom is None:
+            return
+        pos = np.asarray(odom.pos_world_m, dtype=np.float64)
+        d_now = step_inputs(self.path, p["step"] + 1, self.prims.duration_s, pos).distance_m
+        self._finish_step(p, pos, d_now, collided=reason is StopReason.CRASH)
+
+    def _finish(self) -> FlightSummary:
+        reason = self.stop_reason or StopReason.INTERNAL_ERROR
+        odom = self.latest_odom.value
+        pos = np.asarray(odom.pos_world_m) if odom is not None else np.full(3, np.nan)
+        started = math.isfinite(self.t_mission_start_mono_s)
+        summary = FlightSummary.build(
+            reason=reason,
+            detail=self.stop_detail,
+            steps=self.steps,
+            navigation_distance_m=float(self.path.progress_m(pos))
+            if started and np.all(np.isfinite(pos))
+            else 0.0,
+            flight_time_s=(self.t_mission_end_mono_s - self.t_mission_start_mono_s) if started else 0.0,
+            crashed=reason is StopReason.CRASH,
+            total_reward=self.total_reward,
+            stats=self.stats,
+            model_sha256=self.policy.checkpoint.sha256,
+        )
+        self.recorder.close(reason.value, summary.to_dict())
+        return summary

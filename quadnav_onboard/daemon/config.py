@@ -1,0 +1,236 @@
+"""The flight daemon's configuration: one frozen, typed tree loaded and validated before anything arms.
+
+Every section is a frozen dataclass with a docstring per field; YAML files are validated with
+:func:`quadnav_onboard.config.parse_config`, so an unknown key, a wrong type or an out-of-range
+value raises :class:`quadnav_onboard.config.ConfigError` naming the file, the key path and the value.
+Positions are world frame (x forward, y left, z up), metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import pydantic
+
+from quadnav_onboard.config import ConfigError, PrimitiveConfig, load_yaml, parse_config
+from quadnav_onboard.preprocess import PreprocessConfig
+from quadnav_onboard.reward import RewardParams
+
+__all__ = [
+    "DepthSourceConfig",
+    "FlightConfig",
+    "MissionConfig",
+    "OdometrySourceConfig",
+    "RecordConfig",
+    "SafetyConfig",
+    "VehicleConfig",
+    "default_sim_config",
+    "load_flight_config",
+]
+
+Vec3 = tuple[float, float, float]
+_IDENTITY: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """The rough path, the moving setpoint and when a flight is done."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    waypoints_m: tuple[Vec3, ...] | None = None
+    """Rough path (world, m), >= 2 waypoints; the first is where the vehicle takes off to.
+    ``None`` only in a dry run, which takes the world file's path."""
+    speed_m_s: Annotated[float, pydantic.Field(gt=0, le=5)] = 1.0
+    """Speed (m/s) of the moving setpoint along the path (paper: 1 in sim, 0.5 real)."""
+    max_steps: Annotated[int, pydantic.Field(ge=1, le=10_000)] = 60
+    """Step limit: the flight stops (hold) after this many primitives (paper's real flights: 30)."""
+    goal_radius_m: Annotated[float, pydantic.Field(gt=0)] = 1.0
+    """The goal is reached within this distance (m) of the last waypoint (or at full progress)."""
+    takeoff_speed_m_s: Annotated[float, pydantic.Field(gt=0, le=3)] = 0.5
+    """Speed (m/s) of the setpoint ramp from the ground to the path start."""
+    start_tolerance_m: Annotated[float, pydantic.Field(gt=0)] = 0.3
+    """The mission begins once the vehicle is this close (m) to the path start."""
+    takeoff_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 60.0
+    """Give up (safe abort) if the path start is not reached within this time (s)."""
+    land_at_goal: bool = True
+    """At the goal: hold, then land (True) or stay holding (False)."""
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """The supervisor's limits and its response ladder (hold -> land -> optionally disarm)."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    max_deviation_m: Annotated[float, pydantic.Field(gt=0)] = 5.0
+    """Stop when farther than this (m) from the rough path (paper: 5 m in sim)."""
+    geofence_min_m: Vec3 = (-100.0, -100.0, -1.0)
+    """Lower corner (world, m) of the allowed box."""
+    geofence_max_m: Vec3 = (100.0, 100.0, 30.0)
+    """Upper corner (world, m) of the allowed box."""
+    altitude_floor_m: float = 0.3
+    """Lowest allowed altitude (world z, m) during the mission (not during take-off or landing)."""
+    altitude_ceiling_m: float = 10.0
+    """Highest allowed altitude (world z, m)."""
+    stale_depth_s: Annotated[float, pydantic.Field(gt=0)] = 0.3
+    """Stop when the newest depth frame is older than this (s)."""
+    stale_odometry_s: Annotated[float, pydantic.Field(gt=0)] = 0.1
+    """Stop when the newest odometry sample is older than this (s)."""
+    link_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 0.5
+    """Stop when nothing has been heard from the vehicle for this long (s)."""
+    inference_budget_s: Annotated[float, pydantic.Field(gt=0)] = 0.25
+    """Stop when one decision (preprocess + network) takes longer than this (s)."""
+    check_rate_hz: Annotated[float, pydantic.Field(gt=0, le=1000)] = 50.0
+    """Rate (Hz) of the in-flight checks; 50 Hz reacts to stale input within 20 ms."""
+    hold_before_land_s: Annotated[float, pydantic.Field(ge=0)] = 2.0
+    """After an abort: hold this long (s) before commanding land."""
+    land_on_abort: bool = True
+    """After an abort: land once held (True), or keep holding (False)."""
+    disarm_on_abort: bool = False
+    """After an abort: disarm once landed (PX4 also auto-disarms after touchdown)."""
+    land_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 30.0
+    """How long (s) to wait for touchdown after commanding land."""
+
+    def __post_init__(self) -> None:
+        if not all(lo < hi for lo, hi in zip(self.geofence_min_m, self.geofence_max_m, strict=True)):
+            raise ValueError(f"geofence_min_m {self.geofence_min_m} must be below geofence_max_m")
+        if not self.altitude_floor_m < self.altitude_ceiling_m:
+            raise ValueError("altitude_floor_m must be below altitude_ceiling_m")
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """The MAVLink link to PX4 through MAVSDK."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    url: str = "serial:///dev/ttyACM0:921600"
+    """MAVSDK connection URL: serial:///dev/ttyX:BAUD, udpin://0.0.0.0:14540, ..."""
+    connect_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 15.0
+    """How long (s) to wait for the autopilot to appear."""
+    command_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 5.0
+    """How long (s) any single command (arm, mode switch, ...) may take."""
+    health_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 15.0
+    """How long (s) preflight waits for PX4 to report local position OK."""
+    setpoint_rate_hz: Annotated[float, pydantic.Field(ge=2, le=100)] = 20.0
+    """Rate (Hz) at which the daemon itself streams position setpoints (PX4 needs >= 2)."""
+
+
+@dataclass(frozen=True)
+class DepthSourceConfig:
+    """Where depth frames come from."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    kind: Literal["uvc", "replay", "sim"] = "uvc"
+    """uvc: RealSense over V4L2; replay: a folder of 16-bit PNGs; sim: the sim harness camera."""
+    device: str = "/dev/video0"
+    """uvc: V4L2 device path (/dev/videoN) or index ("2")."""
+    width: Annotated[int, pydantic.Field(ge=32)] = 424
+    """Frame width (px)."""
+    height: Annotated[int, pydantic.Field(ge=32)] = 240
+    """Frame height (px)."""
+    fps: Annotated[float, pydantic.Field(gt=0, le=300)] = 30.0
+    """Frame rate (Hz) requested from the camera, or the replay rate."""
+    folder: str | None = None
+    """replay: folder of uint16 PNG files (mm), played in name order."""
+    loop: bool = True
+    """replay: start over at the end of the folder."""
+
+
+@dataclass(frozen=True)
+class OdometrySourceConfig:
+    """Where the vehicle pose comes from."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    kind: Literal["mocap", "px4", "sim"] = "mocap"
+    """mocap: the motioncapture library; px4: PX4's own estimate over MAVSDK; sim: sim harness."""
+    system_type: str = "optitrack"
+    """mocap: motioncapture system (optitrack, vicon, qualisys, vrpn, mock, ...)."""
+    host: str = "192.168.1.100"
+    """mocap: host name or address of the mocap server."""
+    rigid_body: str = "quad"
+    """mocap: name of the vehicle's rigid body."""
+    rotation_world_from_mocap: tuple[Vec3, Vec3, Vec3] = _IDENTITY
+    """mocap: rotation matrix (rows) taking mocap-frame vectors into the world frame. OptiTrack's
+    y-up frame: ((1, 0, 0), (0, 0, -1), (0, 1, 0))."""
+    translation_world_m: Vec3 = (0.0, 0.0, 0.0)
+    """mocap: position (m, world) of the mocap origin."""
+    forward_to_px4: bool = False
+    """mocap: also send each pose to PX4 as a vision position estimate (EKF2 external vision)."""
+    forward_rate_hz: Annotated[float, pydantic.Field(ge=30, le=200)] = 50.0
+    """mocap: rate limit (Hz) of the forwarding to PX4 (>= 30 as EKF2 expects)."""
+
+    def __post_init__(self) -> None:
+        r = np.asarray(self.rotation_world_from_mocap, dtype=np.float64)
+        if not (np.allclose(r @ r.T, np.eye(3), atol=1e-6) and np.linalg.det(r) > 0):
+            raise ValueError(f"rotation_world_from_mocap {self.rotation_world_from_mocap} is not a rotation")
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """The flight record (MCAP, see quadnav_onboard.record)."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    enabled: bool = True
+    """Write a flight record."""
+    directory: str = "records"
+    """Folder for the records (created if missing); one file per flight."""
+    depth_decimation: Annotated[int, pydantic.Field(ge=1)] = 5
+    """Record every N-th raw depth frame (network inputs are always recorded)."""
+
+
+@dataclass(frozen=True)
+class FlightConfig:
+    """Everything one flight needs."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    model_path: str | None = None
+    """Checkpoint to fly; None = the bundled quadnav_onboard/models/default.pt."""
+    mission: MissionConfig = field(default_factory=MissionConfig)
+    """Rough path, speed, step limit, goal."""
+    primitives: PrimitiveConfig | None = None
+    """Action set; None = what the checkpoint was trained with (real flight: scale_m 0.5)."""
+    preprocess: PreprocessConfig | None = None
+    """Depth preprocessing; None = what the checkpoint was trained with."""
+    reward: RewardParams = field(default_factory=RewardParams)
+    """Reward constants, for the flight's total reward (as in training)."""
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    """Supervisor limits and response ladder."""
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    """MAVLink link."""
+    depth: DepthSourceConfig = field(default_factory=DepthSourceConfig)
+    """Depth camera."""
+    odometry: OdometrySourceConfig = field(default_factory=OdometrySourceConfig)
+    """Pose source."""
+    record: RecordConfig = field(default_factory=RecordConfig)
+    """Flight record."""
+    trigger: dict[str, Any] | None = None
+    """Mission start condition, passed to quadnav_onboard.trigger (None = mode auto)."""
+
+
+def load_flight_config(path: str | Path, *, require_waypoints: bool = True) -> FlightConfig:
+    """Load and validate a flight YAML file; raises ConfigError naming file, key and value."""
+    cfg = parse_config(FlightConfig, load_yaml(path), source=str(path))
+    if require_waypoints and cfg.mission.waypoints_m is None:
+        raise ConfigError(f"{path}: key 'mission.waypoints_m': required for a flight (got None)")
+    if cfg.mission.waypoints_m is not None and len(cfg.mission.waypoints_m) < 2:
+        raise ConfigError(
+            f"{path}: key 'mission.waypoints_m': bad value {cfg.mission.waypoints_m!r}: need >= 2 waypoints"
+        )
+    return cfg
+
+
+def default_sim_config() -> FlightConfig:
+    """The embedded dry-run configuration (quadnav_onboard/defaults/sim.yaml)."""
+    ref = resources.files("quadnav_onboard").joinpath("defaults/sim.yaml")
+    with resources.as_file(ref) as p:
+        return load_flight_config(p, require_waypoints=False)

@@ -1,0 +1,257 @@
+"""The daemon's concurrent tasks: sensor ingest, telemetry watch, setpoint streamer, supervisor.
+
+Sensors publish into :class:`~quadnav_onboard.daemon.stats.Latest` holders (latest value wins,
+nothing queues up). A task whose source fails logs it and ends; the data it fed goes stale and the
+supervisor stops the flight, so one broken sensor never tears down the task group (and with it the
+response ladder).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from collections.abc import AsyncIterator
+from typing import Any
+
+import numpy as np
+
+from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.daemon.stats import LatencyStats, Latest
+from quadnav_onboard.daemon.summary import NullNotifier
+from quadnav_onboard.daemon.supervisor import FlightSnapshot, StopReason, check_in_flight
+from quadnav_onboard.logs import get_logger
+from quadnav_onboard.sources.base import DepthFrame, OdometrySample
+from quadnav_onboard.vehicle import VehicleError, VehicleLink
+
+__all__ = ["Loops", "RunStats"]
+
+log = get_logger("quadnav.daemon")
+
+
+class RunStats:
+    """Bounded timing figures of one flight (seconds in, ms out)."""
+
+    def __init__(self) -> None:
+        self.decision_latency = LatencyStats()
+        """Decision start (newest frame taken) -> first setpoint of the new primitive sent."""
+        self.inference = LatencyStats()
+        """Preprocess + DQN in the executor."""
+        self.setpoint_interval = LatencyStats()
+        """Time between consecutive setpoints sent."""
+        self.hold_reaction_s: float | None = None
+        """Stale-input threshold crossing -> hold command issued (None if no such stop)."""
+        self.depth_frames = 0
+        self.odometry_samples = 0
+        self.setpoints = 0
+
+
+class Loops:
+    """State shared by the tasks, and the tasks themselves (mixed into FlightDaemon)."""
+
+    def __init__(self, cfg: FlightConfig, *, vehicle: VehicleLink, recorder: Any, notifier: Any) -> None:
+        self.cfg = cfg
+        self.vehicle = vehicle
+        self.recorder = recorder
+        self.notifier = notifier if notifier is not None else NullNotifier()
+        self.latest_depth: Latest[DepthFrame] = Latest()
+        self.latest_odom: Latest[OdometrySample] = Latest()
+        self.stop_event = asyncio.Event()
+        self.new_trajectory = asyncio.Event()
+        self.stop_reason: StopReason | None = None
+        self.stop_detail = ""
+        self.t_stop_threshold_mono_s: float | None = None
+        self.phase = "startup"
+        self.trajectory: Any = None
+        self.streaming = False
+        self.supervising = False
+        self.in_mission = False
+        self.t_decision_start: float | None = None
+        self.last_inference_s = 0.0
+        self.decision_t: float | None = None
+        self.decision_latency_last_s = math.nan
+        self.pending_step: dict[str, Any] | None = None
+        self.depth_error: str | None = None
+        self.stats = RunStats()
+
+    # --- stop requests -------------------------------------------------------------------------
+
+    def request_stop(self, reason: StopReason, detail: str, t_threshold_mono_s: float | None = None) -> bool:
+        """Record the first stop reason and wake the lifecycle; later requests are logged only."""
+        if self.stop_reason is not None:
+            log.info("stop_ignored", reason=reason.value, detail=detail, stopping_for=self.stop_reason.value)
+            return False
+        self.stop_reason, self.stop_detail = reason, detail
+        self.t_stop_threshold_mono_s = t_threshold_mono_s
+        self.streaming = False  # stop commanding at once; the ladder takes over
+        log.warning(
+            "stop", reason=reason.value, detail=detail, phase=self.phase, exit_code=int(reason.exit_code)
+        )
+        self.recorder.event(time.monotonic(), "stop", detail, reason=reason.value, phase=self.phase)
+        self.stop_event.set()
+        return True
+
+    async def command_hold(self) -> None:
+        """Hold now (first rung of the ladder); records the reaction time to a stale-input threshold."""
+        t = time.monotonic()
+        if self.t_stop_threshold_mono_s is not None:
+            self.stats.hold_reaction_s = t - self.t_stop_threshold_mono_s
+        log.warning("ladder", step="hold", reason=self.stop_reason.value if self.stop_reason else None)
+        self.recorder.event(t, "ladder", "hold")
+        try:
+            await self.vehicle.hold()
+        except VehicleError as exc:
+            log.error("ladder_failed", step="hold", error=str(exc))
+            self.recorder.event(time.monotonic(), "ladder_failed", f"hold: {exc}")
+
+    # --- sensors -------------------------------------------------------------------------------
+
+    async def ingest_depth(self) -> None:
+        """Newest depth frame wins; a cheap dtype/shape check flags unusable frames at once."""
+        try:
+            async for frame in self.depth_source.frames():  # type: ignore[attr-defined]
+                arr = frame.depth_mm
+                if arr.dtype != np.uint16 or arr.ndim != 2 or min(arr.shape) < 32:
+                    self.depth_error = (
+                        f"depth frame of dtype {arr.dtype} and shape {arr.shape} (need uint16 HxW)"
+                    )
+                else:
+                    self.depth_error = None
+                self.latest_depth.set(frame)
+                self.stats.depth_frames += 1
+                self.recorder.depth(frame.t_capture_mono_s, arr)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            log.error("depth_source_failed", error=f"{type(exc).__name__}: {exc}")
+            self.recorder.event(time.monotonic(), "source_failed", f"depth: {exc}")
+
+    async def ingest_odometry(self) -> None:
+        """Newest pose wins; optionally forwarded to PX4 as a vision estimate (rate limited)."""
+        fwd = self.cfg.odometry.forward_to_px4 and self.cfg.odometry.kind == "mocap"
+        min_dt = 1.0 / self.cfg.odometry.forward_rate_hz
+        t_fwd = -math.inf
+        try:
+            async for s in self.odometry_source.samples():  # type: ignore[attr-defined]
+                self.latest_odom.set(s)
+                self.stats.odometry_samples += 1
+                self.recorder.odometry(s.t_arrival_mono_s, s.pos_world_m, s.quat_world_body, s.vel_world_m_s)
+                if fwd and s.t_arrival_mono_s - t_fwd >= min_dt and self.vehicle.state.connected:
+                    t_fwd = s.t_arrival_mono_s
+                    with contextlib.suppress(VehicleError, TimeoutError):
+                        await self.vehicle.send_vision_position(s.pos_world_m, s.quat_world_body, t_fwd)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            log.error("odometry_source_failed", error=f"{type(exc).__name__}: {exc}")
+            self.recorder.event(time.monotonic(), "source_failed", f"odometry: {exc}")
+
+    async def watch_vehicle(self) -> None:
+        try:
+            await self.vehicle.run_telemetry()
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            log.error("telemetry_failed", error=f"{type(exc).__name__}: {exc}")
+
+    async def mode_stream(self) -> AsyncIterator[str]:
+        """Flight-mode names as they change (for the offboard-switch trigger)."""
+        last = None
+        while True:
+            mode = self.vehicle.state.mode
+            if mode != last:
+                last = mode
+                yield mode
+            await asyncio.sleep(0.05)
+
+    # --- setpoints -----------------------------------------------------------------------------
+
+    async def stream_setpoints(self) -> None:
+        """Sample the active trajectory at the configured rate (absolute schedule) and send it.
+
+        A new primitive wakes the streamer at once, so its first setpoint leaves without waiting
+        for the next tick. Nothing is sent while ``streaming`` is False.
+        """
+        period = 1.0 / self.cfg.vehicle.setpoint_rate_hz
+        next_t = time.monotonic()
+        last_sent: float | None = None
+        last_traj: Any = None
+        while True:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(max(0.0, next_t - time.monotonic())):
+                    await self.new_trajectory.wait()
+            self.new_trajectory.clear()
+            now = time.monotonic()
+            if now >= next_t:
+                next_t += period
+                if next_t < now:
+                    next_t = now + period
+            traj = self.trajectory
+            if traj is None or not self.streaming:
+                last_sent = None
+                continue
+            pos, vel, yaw = traj.sample(now)
+            try:
+                await self.vehicle.set_setpoint(pos, vel, yaw)
+            except VehicleError as exc:
+                log.error("setpoint_failed", error=str(exc))
+                continue
+            t_sent = time.monotonic()
+            self.stats.setpoints += 1
+            if last_sent is not None:
+                self.stats.setpoint_interval.add(t_sent - last_sent)
+            last_sent = t_sent
+            if traj is not last_traj and self.decision_t is not None and self.in_mission:
+                self.decision_latency_last_s = t_sent - self.decision_t
+                self.stats.decision_latency.add(self.decision_latency_last_s)
+                self.stats.inference.add(self.last_inference_s)
+            last_traj = traj
+            self.recorder.setpoint(t_sent, pos, vel, yaw)
+
+    # --- supervisor ----------------------------------------------------------------------------
+
+    def snapshot(self, now: float) -> FlightSnapshot:
+        depth, odom = self.latest_depth.value, self.latest_odom.value
+        pos = np.asarray(odom.pos_world_m, dtype=np.float64) if odom is not None else np.full(3, np.nan)
+        dev = float(self.path.deviation_m(pos)) if np.all(np.isfinite(pos)) else math.inf  # type: ignore[attr-defined]
+        running = self.t_decision_start
+        probe = self.crash_probe  # type: ignore[attr-defined]
+        return FlightSnapshot(
+            t_mono_s=now,
+            vehicle=self.vehicle.state,
+            t_depth_mono_s=depth.t_capture_mono_s if depth is not None else -math.inf,
+            t_odom_mono_s=odom.t_arrival_mono_s if odom is not None else -math.inf,
+            pos_world_m=pos,
+            deviation_m=dev,
+            in_mission=self.in_mission,
+            inference_s=(now - running) if running is not None else self.last_inference_s,
+            crashed=bool(probe()) if probe is not None else False,
+            depth_error=self.depth_error,
+        )
+
+    async def supervise(self) -> None:
+        """In-flight checks at ``safety.check_rate_hz``; also feeds the systemd watchdog."""
+        period = 1.0 / self.cfg.safety.check_rate_hz
+        t_vehicle_rec = -math.inf
+        while True:
+            await asyncio.sleep(period)
+            now = time.monotonic()
+            self.notifier.watchdog()
+            st = self.vehicle.state
+            if now - t_vehicle_rec >= 0.2:
+                t_vehicle_rec = now
+                self.recorder.vehicle(now, st.armed, st.mode, {"local_position_ok": st.local_position_ok})
+            if not self.supervising or self.stop_reason is not None:
+                continue
+            snap = self.snapshot(now)
+            found = check_in_flight(snap, self.cfg.safety)
+            if found is None:
+                continue
+            reason, detail = found
+            threshold = None
+            if reason is StopReason.STALE_DEPTH:
+                threshold = snap.t_depth_mono_s + self.cfg.safety.stale_depth_s
+            elif reason is StopReason.STALE_ODOMETRY:
+                threshold = snap.t_odom_mono_s + self.cfg.safety.stale_odometry_s
+            self.request_stop(reason, detail, threshold)

@@ -1,0 +1,136 @@
+"""Pure mission geometry: the step semantics shared with training, and setpoint trajectories.
+
+Step k (k = 0, 1, ...), exactly as in the RL environment: the moving setpoint is
+``path.setpoint_at(k * duration_s)``; the heading frame is the path's yaw at the quad's progress
+(closest path point, as in ``sim_harness.env``); the
+planner's position input is ``path.relative_state(setpoint, pos, yaw)``; the chosen primitive
+starts at the previous primitive's *commanded* end point with the previous end velocity (C1).
+Positions world frame (x forward, y left, z up), metres; velocities m/s; times seconds.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from quadnav_onboard.frames import body_to_world, world_to_body
+from quadnav_onboard.path import RoughPath
+from quadnav_onboard.primitives import PrimitiveSet
+
+__all__ = [
+    "ActivePrimitive",
+    "RampTrajectory",
+    "StepInputs",
+    "goal_reached",
+    "step_inputs",
+]
+
+
+@dataclass(frozen=True)
+class StepInputs:
+    """The planner's inputs at one step boundary."""
+
+    setpoint_world_m: NDArray[np.float64]
+    """Moving setpoint (world, m), shape (3,)."""
+    yaw_rad: float
+    """Heading (world yaw, rad) of this step's heading frame."""
+    rel_pos_body_m: NDArray[np.float64]
+    """Setpoint minus quad in the heading frame (m), shape (3,): the network's position input."""
+    distance_m: float
+    """|setpoint - quad| (m): the reward's d_t."""
+
+
+def step_inputs(path: RoughPath, k: int, duration_s: float, pos_world_m: ArrayLike) -> StepInputs:
+    """State of step ``k`` for a quad measured at ``pos_world_m`` (world, m)."""
+    pos = np.asarray(pos_world_m, dtype=np.float64)
+    sp = path.setpoint_at(k * duration_s)
+    yaw = float(path.yaw_at(path.progress_m(pos)))
+    rel = path.relative_state(sp, pos, yaw)
+    return StepInputs(sp, yaw, rel, float(np.linalg.norm(sp - pos)))
+
+
+def goal_reached(path: RoughPath, pos_world_m: ArrayLike, goal_radius_m: float) -> bool:
+    """Within ``goal_radius_m`` of the goal, or progress at (or past) the path's length."""
+    pos = np.asarray(pos_world_m, dtype=np.float64)
+    near = float(np.linalg.norm(pos - path.goal_m)) <= goal_radius_m
+    return near or float(path.progress_m(pos)) >= path.length_m - 1e-9
+
+
+@dataclass(frozen=True)
+class ActivePrimitive:
+    """One commanded primitive, anchored in the world at its start time."""
+
+    primitives: PrimitiveSet
+    action: int
+    start_world_m: NDArray[np.float64]
+    """Commanded start point (world, m): the previous primitive's commanded end point."""
+    start_vel_world_m_s: NDArray[np.float64]
+    """Velocity at the start (world, m/s): the previous primitive's end velocity."""
+    yaw_rad: float
+    """Heading frame (world yaw, rad) the primitive is expressed in; also the commanded yaw."""
+    t_start_mono_s: float
+    """When it started (monotonic s)."""
+
+    def sample(self, t_mono_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """Commanded (position world m, velocity world m/s, yaw rad) at ``t_mono_s``; clamps at the end."""
+        v0 = world_to_body(self.start_vel_world_m_s, self.yaw_rad)
+        t = min(max(t_mono_s - self.t_start_mono_s, 0.0), self.primitives.duration_s)
+        disp, vel = self.primitives.sample(self.action, v0, t)
+        return (
+            self.start_world_m + body_to_world(disp, self.yaw_rad),
+            body_to_world(vel, self.yaw_rad),
+            self.yaw_rad,
+        )
+
+    @property
+    def end_world_m(self) -> NDArray[np.float64]:
+        """Commanded end point (world, m)."""
+        disp = self.primitives.end_displacement_m(self.action)
+        return self.start_world_m + body_to_world(disp, self.yaw_rad)
+
+    @property
+    def end_vel_world_m_s(self) -> NDArray[np.float64]:
+        """Velocity at the end (world, m/s): the next primitive's start velocity."""
+        return body_to_world(self.primitives.end_velocity_m_s(self.action), self.yaw_rad)
+
+
+@dataclass(frozen=True)
+class RampTrajectory:
+    """Straight segments through ``points_world_m`` (K, 3) at constant ``speed_m_s``: the take-off."""
+
+    points_world_m: NDArray[np.float64]
+    speed_m_s: float
+    yaw_rad: float
+    t_start_mono_s: float
+
+    @classmethod
+    def takeoff(
+        cls, ground_world_m: ArrayLike, start_world_m: ArrayLike, speed_m_s: float, yaw_rad: float, t: float
+    ) -> RampTrajectory:
+        """Straight up from ``ground_world_m`` to the start's altitude, then across to the start."""
+        g = np.asarray(ground_world_m, dtype=np.float64)
+        s = np.asarray(start_world_m, dtype=np.float64)
+        up = np.array([g[0], g[1], s[2]])
+        return cls(np.stack([g, up, s]), speed_m_s, yaw_rad, t)
+
+    @property
+    def end_world_m(self) -> NDArray[np.float64]:
+        return self.points_world_m[-1]
+
+    def sample(self, t_mono_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """(position world m, velocity world m/s, yaw rad) at ``t_mono_s``; holds the end point after."""
+        travel = max(t_mono_s - self.t_start_mono_s, 0.0) * self.speed_m_s
+        pts = self.points_world_m
+        for a, b in itertools.pairwise(pts):
+            seg = b - a
+            length = float(np.linalg.norm(seg))
+            if length < 1e-9:
+                continue
+            if travel <= length:
+                direction = seg / length
+                return a + direction * travel, direction * self.speed_m_s, self.yaw_rad
+            travel -= length
+        return pts[-1].copy(), np.zeros(3), self.yaw_rad

@@ -1,0 +1,156 @@
+"""The flight summary (the paper's row + latency figures) and small adapters for optional parts."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+from quadnav_onboard.logs import get_logger
+
+if TYPE_CHECKING:
+    from quadnav_onboard.daemon.loops import RunStats
+    from quadnav_onboard.daemon.supervisor import StopReason
+
+__all__ = ["FlightSummary", "NullNotifier", "SafeRecorder"]
+
+log = get_logger("quadnav.daemon")
+
+
+def _r(x: float, nd: int = 3) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), nd)
+
+
+@dataclass(frozen=True)
+class FlightSummary:
+    """One flight: the paper's row (distance, time, crash, reward), why it stopped, and timings."""
+
+    stop_reason: str
+    """:class:`StopReason` value."""
+    detail: str
+    """Human-readable detail of the stop."""
+    exit_code: int
+    """Process exit code (see :class:`ExitCode`)."""
+    steps: int
+    """Primitives executed."""
+    navigation_distance_m: float
+    """Progress along the rough path (m) at the end: the paper's navigation distance."""
+    flight_time_s: float
+    """Mission time (s) from the first decision to the stop."""
+    crashed: bool
+    """A collision was reported."""
+    total_reward: float
+    """Sum of the per-step rewards, computed exactly as in training."""
+    decision_latency_ms: dict[str, float | None]
+    """Newest frame taken -> first setpoint of the new primitive sent: n, p50, p99, max (ms)."""
+    inference_ms: dict[str, float | None]
+    """Preprocess + DQN: n, p50, p99, max (ms)."""
+    setpoint_interval_ms: dict[str, float | None]
+    """Interval between setpoints sent: n, p50, p99, max (ms)."""
+    hold_reaction_ms: float | None
+    """Stale-input threshold -> hold command (ms), when the flight stopped for stale input."""
+    model_sha256: str
+    """SHA-256 of the checkpoint flown."""
+
+    @classmethod
+    def build(
+        cls,
+        *,
+        reason: StopReason,
+        detail: str,
+        steps: int,
+        navigation_distance_m: float,
+        flight_time_s: float,
+        crashed: bool,
+        total_reward: float,
+        stats: RunStats,
+        model_sha256: str,
+    ) -> FlightSummary:
+        def lat(s: Any) -> dict[str, float | None]:
+            return {k: (int(v) if k == "n" else _r(v)) for k, v in s.summary().items()}
+
+        hold = stats.hold_reaction_s
+        return cls(
+            stop_reason=reason.value,
+            detail=detail,
+            exit_code=int(reason.exit_code),
+            steps=int(steps),
+            navigation_distance_m=_r(navigation_distance_m) or 0.0,
+            flight_time_s=_r(flight_time_s) or 0.0,
+            crashed=bool(crashed),
+            total_reward=_r(total_reward, 4) or 0.0,
+            decision_latency_ms=lat(stats.decision_latency),
+            inference_ms=lat(stats.inference),
+            setpoint_interval_ms=lat(stats.setpoint_interval),
+            hold_reaction_ms=None if hold is None else _r(hold * 1e3),
+            model_sha256=model_sha256,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def paper_row(self) -> str:
+        """The paper's table row, plus the stop reason."""
+        return (
+            f"navigation distance {self.navigation_distance_m:.2f} m | time {self.flight_time_s:.1f} s | "
+            f"crash {'yes' if self.crashed else 'no'} | total reward {self.total_reward:.3f} | "
+            f"stop: {self.stop_reason} ({self.detail})"
+        )
+
+    def latency_lines(self) -> list[str]:
+        def fmt(name: str, d: dict[str, float | None]) -> str:
+            return f"{name}: n={d['n']} p50={d['p50_ms']} ms p99={d['p99_ms']} ms max={d['max_ms']} ms"
+
+        lines = [
+            fmt("decision latency (frame -> first setpoint)", self.decision_latency_ms),
+            fmt("inference (preprocess + DQN)", self.inference_ms),
+            fmt("setpoint interval", self.setpoint_interval_ms),
+        ]
+        if self.hold_reaction_ms is not None:
+            lines.append(f"stale input -> hold: {self.hold_reaction_ms} ms")
+        return lines
+
+
+class SafeRecorder:
+    """Calls the flight recorder but never lets it break the flight (missing, failing or None)."""
+
+    def __init__(self, recorder: Any) -> None:
+        self._rec = recorder
+        self._failed: set[str] = set()
+
+    def __getattr__(self, name: str) -> Any:
+        target = getattr(self._rec, name, None) if self._rec is not None else None
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            if target is None:
+                return None
+            try:
+                return target(*args, **kwargs)
+            except Exception as exc:
+                if name not in self._failed:
+                    self._failed.add(name)
+                    log.error("recorder_failed", method=name, error=f"{type(exc).__name__}: {exc}")
+                return None
+
+        return call
+
+
+class NullNotifier:
+    """Stands in for quadnav_onboard.sdnotify.SdNotifier when not under systemd."""
+
+    def ready(self, status: str | None = None) -> bool:
+        return False
+
+    def watchdog(self) -> bool:
+        return False
+
+    def status(self, text: str) -> bool:
+        return False
+
+    def stopping(self) -> bool:
+        return False
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            pass
