@@ -25,6 +25,9 @@ __all__ = ["DEFAULT_TOL_M", "clearance_m", "collides", "sweep_collides"]
 DEFAULT_TOL_M = 0.01
 """Smallest advancement step (m) along a trail: contacts shallower than this may be missed."""
 
+PARALLEL_MIN_POINTS = 20_000
+"""Batches of at least this many points (trail points) use numba's thread pool."""
+
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
@@ -56,39 +59,56 @@ def _sdf(px, py, pz, kind, center, rot, half, bound_r, floor_z, ceiling_z, far):
 
 
 @numba.njit(parallel=True, **_JIT)
-def _clearance_kernel(pts, kind, center, rot, half, bound_r, floor_z, ceiling_z, out):  # pragma: no cover
+def _clearance_parallel(pts, kind, center, rot, half, bound_r, floor_z, ceiling_z, out):  # pragma: no cover
     for n in numba.prange(pts.shape[0]):
         out[n] = _sdf(pts[n, 0], pts[n, 1], pts[n, 2], kind, center, rot, half, bound_r, floor_z,
                       ceiling_z, 1e9)
 
 
+@numba.njit(**_JIT)
+def _clearance_serial(pts, kind, center, rot, half, bound_r, floor_z, ceiling_z, out):  # pragma: no cover
+    for n in range(pts.shape[0]):
+        out[n] = _sdf(pts[n, 0], pts[n, 1], pts[n, 2], kind, center, rot, half, bound_r, floor_z,
+                      ceiling_z, 1e9)
+
+
 @numba.njit(parallel=True, **_JIT)
-def _sweep_kernel(trail, radius, tol, kind, center, rot, half, bound_r, floor_z, ceiling_z,
+def _sweep_parallel(trail, radius, tol, kind, center, rot, half, bound_r, floor_z, ceiling_z,
+                    out):  # pragma: no cover
+    for n in numba.prange(trail.shape[1]):
+        out[n] = _sweep_one(trail, n, radius, tol, kind, center, rot, half, bound_r, floor_z, ceiling_z)
+
+
+@numba.njit(**_JIT)
+def _sweep_serial(trail, radius, tol, kind, center, rot, half, bound_r, floor_z, ceiling_z,
                   out):  # pragma: no cover
-    n_pts, n_veh = trail.shape[0], trail.shape[1]
-    for n in numba.prange(n_veh):
-        hit = False
-        for k in range(max(n_pts - 1, 1)):
-            ax, ay, az = trail[k, n, 0], trail[k, n, 1], trail[k, n, 2]
-            if n_pts == 1:
-                dx = dy = dz = 0.0
-            else:
-                dx, dy, dz = trail[k + 1, n, 0] - ax, trail[k + 1, n, 1] - ay, trail[k + 1, n, 2] - az
-            seg = math.sqrt(dx * dx + dy * dy + dz * dz)
-            s = 0.0
-            while True:
-                f = s / seg if seg > 0.0 else 0.0
-                c = _sdf(ax + f * dx, ay + f * dy, az + f * dz, kind, center, rot, half, bound_r,
-                         floor_z, ceiling_z, 1e9)
-                if c < radius:
-                    hit = True
-                    break
-                if s >= seg:
-                    break
-                s = min(seg, s + max(c - radius, tol))
-            if hit:
+    for n in range(trail.shape[1]):
+        out[n] = _sweep_one(trail, n, radius, tol, kind, center, rot, half, bound_r, floor_z, ceiling_z)
+
+
+@numba.njit(**_JIT)
+def _sweep_one(trail, n, radius, tol, kind, center, rot, half, bound_r, floor_z,
+               ceiling_z):  # pragma: no cover
+    """Whether vehicle n's sphere touches a solid along its trail (conservative advancement)."""
+    n_pts = trail.shape[0]
+    for k in range(max(n_pts - 1, 1)):
+        ax, ay, az = trail[k, n, 0], trail[k, n, 1], trail[k, n, 2]
+        if n_pts == 1:
+            dx = dy = dz = 0.0
+        else:
+            dx, dy, dz = trail[k + 1, n, 0] - ax, trail[k + 1, n, 1] - ay, trail[k + 1, n, 2] - az
+        seg = math.sqrt(dx * dx + dy * dy + dz * dz)
+        s = 0.0
+        while True:
+            f = s / seg if seg > 0.0 else 0.0
+            c = _sdf(ax + f * dx, ay + f * dy, az + f * dz, kind, center, rot, half, bound_r,
+                     floor_z, ceiling_z, 1e9)
+            if c < radius:
+                return True
+            if s >= seg:
                 break
-        out[n] = hit
+            s = min(seg, s + max(c - radius, tol))
+    return False
 
 
 def _geom_args(world: World) -> tuple:
@@ -104,7 +124,9 @@ def clearance_m(world: World, pos_world_m: ArrayLike) -> NDArray[np.float64]:
     p = np.asarray(pos_world_m, dtype=np.float64)
     pts = np.ascontiguousarray(p.reshape(-1, 3))
     out = np.empty(pts.shape[0])
-    _clearance_kernel(pts, *_geom_args(world), out)
+    # numba's thread pool only pays off for big batches (waking it costs ~ms on a loaded machine)
+    (_clearance_parallel if pts.shape[0] >= PARALLEL_MIN_POINTS else _clearance_serial)(
+        pts, *_geom_args(world), out)
     return out.reshape(p.shape[:-1])
 
 
@@ -126,5 +148,6 @@ def sweep_collides(world: World, trail_m: ArrayLike, radius_m: float,
     if not tol_m > 0:
         raise ValueError(f"tol_m must be positive, got {tol_m}")
     out = np.empty(trail.shape[1], dtype=np.bool_)
-    _sweep_kernel(trail, float(radius_m), float(tol_m), *_geom_args(world), out)
+    kernel = _sweep_parallel if trail.shape[0] * trail.shape[1] >= PARALLEL_MIN_POINTS else _sweep_serial
+    kernel(trail, float(radius_m), float(tol_m), *_geom_args(world), out)
     return out

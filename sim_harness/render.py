@@ -85,6 +85,9 @@ D435_424x240 = CameraModel(424, 240)
 NETWORK_32 = CameraModel(OUT_SIZE, OUT_SIZE)
 """The D435 field of view sampled directly at the network's 32x32 (the training path)."""
 
+PARALLEL_MIN_POSES = 64
+"""Batches of at least this many poses are cast on numba's thread pool, smaller ones serially."""
+
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
 
@@ -329,11 +332,11 @@ def _to_depth(t, min_r, max_r, out):  # pragma: no cover - compiled
                 out[n, i, j] = v if min_r <= v <= max_r else 0.0
 
 
-@numba.njit(parallel=True, **_JIT)
+@numba.njit(**_JIT)
 def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: no cover - compiled
     """Camera depth rules then preprocessing (invalid -> norm_max, clip, /norm_max), ss x ss block mean."""
     inv = 1.0 / (ss * ss * norm_max)
-    for n in numba.prange(out.shape[0]):
+    for n in range(out.shape[0]):
         for i in range(out.shape[1]):
             for j in range(out.shape[2]):
                 acc = 0.0
@@ -369,14 +372,15 @@ def cast_depth_m(
     """Raw ray cast: z-depth (m) of the nearest surface, inf where nothing is hit, 0 inside a solid.
 
     ``pos_world_m`` (N, 3), ``rot_world_body`` (N, 3, 3) body->world; returns (N, H*s, W*s) float64.
-    ``parallel``: use numba's thread pool (default: for batches, N > 1). A single frame is cast on
-    the calling thread (GIL released): on a loaded machine, waking the pool costs more than it saves.
+    ``parallel``: use numba's thread pool (default: for N >= ``PARALLEL_MIN_POSES``). Smaller
+    batches and single frames are cast on the calling thread (GIL released): on a loaded machine,
+    waking the pool costs milliseconds, more than it saves.
     """
     pos, rot = _poses(pos_world_m, np.asarray(rot_world_body, dtype=np.float64))
     ty, tz = camera.ray_slopes(supersample)
     out = np.empty((pos.shape[0], tz.size, ty.size))
     if parallel is None:
-        parallel = pos.shape[0] > 1
+        parallel = pos.shape[0] >= PARALLEL_MIN_POSES
     # few poses in parallel: split each image into bands of rows so that all threads work
     threads = numba.get_num_threads()
     n_band = 1 if pos.shape[0] >= 4 * threads or not parallel else min(tz.size, 4 * threads)
