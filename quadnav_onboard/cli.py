@@ -1,29 +1,163 @@
-"""``quadnav-onboard``: the flight daemon's command line."""
+"""``quadnav-onboard``: the flight daemon's command line.
+
+Exit codes (see :class:`quadnav_onboard.daemon.supervisor.ExitCode` and docs/daemon.md):
+0 goal reached; 1 internal error; 2 refused before arming (bad config, model or pre-flight check);
+3 safe abort (supervisor or operator stop: ended holding or landed); 4 crash.
+"""
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import contextlib
+import json
 import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
 
-__all__ = ["main"]
+__all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="quadnav-onboard",
         description="Fly a quadrotor with the quadnav DQN planner through PX4 (MAVSDK offboard).",
+        epilog="exit codes: 0 goal reached, 1 internal error, 2 refused before arming, 3 safe abort, 4 crash",
     )
     p.add_argument("--config", metavar="FLIGHT.yaml", help="flight configuration (see config/flight.yaml)")
     p.add_argument("--dry-run", action="store_true", help="fly in the sim harness with the bundled model")
     p.add_argument("--world", metavar="WORLD.yaml", help="with --dry-run: world file to fly (default: Env 1)")
+    p.add_argument("--model", metavar="CKPT.pt", help="checkpoint to fly (overrides model_path)")
     p.add_argument("--json", action="store_true", help="print the flight summary as one JSON object")
+    p.add_argument(
+        "--record-dir", metavar="DIR", help="write the flight record here (overrides record.directory)"
+    )
+    p.add_argument("--no-record", action="store_true", help="do not write a flight record")
+    p.add_argument(
+        "--log-format", choices=("auto", "json", "console"), default="auto", help="log format (stderr)"
+    )
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    build_parser().parse_args(argv)
-    print("quadnav-onboard: the flight daemon is not built yet (issue 6)", file=sys.stderr)
+def _fail(msg: str) -> int:
+    print(f"quadnav-onboard: {msg}", file=sys.stderr)
     return 2
+
+
+def _open_recorder(cfg: Any, metadata: dict[str, str]) -> Any:
+    if not cfg.record.enabled:
+        return None
+    from quadnav_onboard.record.recorder import FlightRecorder
+
+    name = time.strftime("flight-%Y%m%d-%H%M%S", time.gmtime()) + ".mcap"
+    return FlightRecorder(
+        Path(cfg.record.directory) / name, metadata=metadata, depth_decimation=cfg.record.depth_decimation
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from quadnav_onboard.logs import configure_logging
+
+    configure_logging(json={"auto": None, "json": True, "console": False}[args.log_format])
+    from quadnav_onboard.checkpoint import CheckpointError
+    from quadnav_onboard.config import ConfigError
+    from quadnav_onboard.daemon.config import default_sim_config, load_flight_config
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+
+    if args.world and not args.dry_run:
+        return _fail("--world needs --dry-run")
+    if not args.config and not args.dry_run:
+        return _fail("give --config FLIGHT.yaml, or --dry-run to fly the simulator")
+    source = args.config or "<embedded defaults/sim.yaml>"
+    try:
+        cfg = (
+            load_flight_config(args.config, require_waypoints=not args.dry_run)
+            if args.config
+            else default_sim_config()
+        )
+        if args.record_dir:
+            cfg = replace(cfg, record=replace(cfg.record, directory=args.record_dir))
+        if args.no_record:
+            cfg = replace(cfg, record=replace(cfg.record, enabled=False))
+        trigger = _trigger_config(cfg, source, simulated=args.dry_run)
+    except ConfigError as exc:
+        return _fail(f"configuration error:\n{exc}")
+    model_path = Path(args.model or cfg.model_path or DEFAULT_MODEL_PATH)
+    try:
+        policy = Policy.from_path(model_path)
+    except CheckpointError as exc:
+        return _fail(f"model refused: {exc}")
+    except ConfigError as exc:
+        return _fail(f"model refused: {model_path}: {exc}")
+    try:
+        summary = _fly(args, cfg, policy, trigger, model_path)
+    except ConfigError as exc:
+        return _fail(f"configuration error:\n{exc}")
+    except Exception as exc:  # a world file, a device that cannot open: say what, no traceback
+        from quadnav_onboard.logs import get_logger
+
+        get_logger("quadnav.cli").exception("startup_failed")
+        return _fail(f"cannot start: {type(exc).__name__}: {exc}")
+    if args.json:
+        print(json.dumps(summary.to_dict(), allow_nan=False, default=str))
+    else:
+        print(summary.paper_row())
+        for line in summary.latency_lines():
+            print(line)
+    return summary.exit_code
+
+
+def _trigger_config(cfg: Any, source: str, *, simulated: bool) -> Any:
+    try:
+        from quadnav_onboard.trigger import trigger_config_from_mapping
+    except ImportError:  # pragma: no cover - trigger module ships with the package
+        return None
+    return trigger_config_from_mapping(cfg.trigger, source=source, simulated=simulated)
+
+
+def _notifier() -> Any:
+    try:
+        from quadnav_onboard.sdnotify import SdNotifier
+    except ImportError:  # pragma: no cover
+        return None
+    return SdNotifier.from_env()
+
+
+def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_path: Path) -> Any:
+    import torch
+
+    from quadnav_onboard.daemon.app import FlightDaemon
+
+    torch.set_num_threads(1)
+    meta = {
+        "config": json.dumps(asdict(cfg), default=str),
+        "model_path": str(model_path),
+        "model_sha256": policy.checkpoint.sha256,
+        "dry_run": str(bool(args.dry_run)),
+    }
+    with contextlib.ExitStack() as stack:
+        if args.dry_run:
+            from quadnav_onboard.daemon.dryrun import DryRun
+
+            sim = stack.enter_context(DryRun(cfg, args.world))
+            cfg = sim.cfg
+            parts = sim.parts()
+            meta["world"] = str(sim.world_path)
+        else:
+            from quadnav_onboard.daemon.hardware import hardware_parts
+
+            parts = hardware_parts(cfg)
+        recorder = _open_recorder(cfg, meta)
+        if recorder is not None:
+            with contextlib.suppress(Exception):
+                recorder.rough_path(time.monotonic(), parts["path"].waypoints_m)
+        daemon = FlightDaemon(
+            cfg, policy=policy, recorder=recorder, notifier=_notifier(), trigger=trigger, **parts
+        )
+        return asyncio.run(daemon.run())
 
 
 if __name__ == "__main__":

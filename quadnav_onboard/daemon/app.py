@@ -282,7 +282,9 @@ class FlightDaemon(Loops):
         await asyncio.sleep(3.0 / self.cfg.vehicle.setpoint_rate_hz)
         self.flying = True
         await self.vehicle.arm()
+        await self._await_state(lambda st: st.armed, "armed")
         await self.vehicle.start_offboard()
+        await self._await_state(lambda st: st.mode == "OFFBOARD", "in OFFBOARD")
         self.supervising = True
         ramp = RampTrajectory.takeoff(
             ground, self.path.start_m, cfg.takeoff_speed_m_s, yaw0, time.monotonic()
@@ -302,6 +304,16 @@ class FlightDaemon(Loops):
                 )
                 return
             await asyncio.sleep(0.05)
+
+    async def _await_state(self, pred: Callable[[Any], bool], what: str) -> None:
+        """Wait until telemetry confirms a command took effect (bounded by command_timeout_s)."""
+        try:
+            async with asyncio.timeout(self.cfg.vehicle.command_timeout_s):
+                while not pred(self.vehicle.state):
+                    await asyncio.sleep(0.02)
+        except TimeoutError:
+            limit = self.cfg.vehicle.command_timeout_s
+            raise VehicleError(f"telemetry did not confirm the vehicle {what} within {limit:g} s") from None
 
     @staticmethod
     def _ramp_duration(ramp: RampTrajectory) -> float:

@@ -1,0 +1,116 @@
+"""Dry-run wiring: the daemon against the sim harness (the only place quadnav_onboard imports it).
+
+Starts the emulated PX4 (:class:`sim_harness.px4.Px4Emulator`) on an OS-chosen UDP port with the
+world, the synthetic D435 (:class:`sim_harness.camera.SimDepthCamera`) and the simulated mocap
+(:class:`sim_harness.mocap.SimMocap`) on the emulator's true pose, and a real
+:class:`~quadnav_onboard.vehicle.MavsdkVehicle` that connects to it over real MAVLink.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.path import RoughPath
+from quadnav_onboard.vehicle import MavsdkVehicle
+
+__all__ = ["DryRun"]
+
+GEAR_HEIGHT_M = 0.1
+"""The emulator parks the body origin on the floor; a real D435 sits at least landing-gear height
+above it (else it sees no floor at all and preflight rightly refuses an all-invalid frame). The sim
+camera's height is floored at ``floor + GEAR_HEIGHT_M``; in flight (higher) nothing changes."""
+
+
+class _CameraPose:
+    """The emulator's true pose with the camera no lower than landing-gear height."""
+
+    def __init__(self, pose_fn: Any, floor_z_m: float | None) -> None:
+        self._pose_fn = pose_fn
+        self._min_z_m = (floor_z_m or 0.0) + GEAR_HEIGHT_M
+
+    def __call__(self) -> Any:
+        pose = self._pose_fn()
+        if pose.pos_world_m[2] >= self._min_z_m:
+            return pose
+        pos = pose.pos_world_m.copy()
+        pos[2] = self._min_z_m
+        return dataclasses.replace(pose, pos_world_m=pos)
+
+
+class DryRun:
+    """Context manager: ``with DryRun(cfg, world_path) as sim: FlightDaemon(..., **sim.parts())``.
+
+    ``emulator``: keyword arguments for :class:`sim_harness.px4.EmulatorConfig` (e.g. a faster
+    heartbeat in tests). ``world_path`` None = the paper's Env 1.
+    """
+
+    def __init__(
+        self,
+        cfg: FlightConfig,
+        world_path: str | Path | None = None,
+        *,
+        emulator: dict[str, Any] | None = None,
+        mocap: dict[str, Any] | None = None,
+        seed: int = 0,
+    ) -> None:
+        from sim_harness.world import load_world, paper_world_path
+
+        self.world_path = Path(world_path) if world_path is not None else paper_world_path(1)
+        self.world = load_world(self.world_path)
+        self.cfg = cfg
+        self._emulator_kwargs = emulator or {}
+        self._mocap_kwargs = mocap or {}
+        self.seed = seed
+        self.emulator: Any = None
+
+    @property
+    def path(self) -> RoughPath:
+        """The rough path to fly: the config's waypoints if given, else the world's."""
+        wps = self.cfg.mission.waypoints_m
+        if wps is None:
+            return self.world.path
+        return RoughPath(wps, self.cfg.mission.speed_m_s)
+
+    def __enter__(self) -> DryRun:
+        from sim_harness.px4 import EmulatorConfig, Px4Emulator, free_udp_port
+
+        port = free_udp_port()
+        self.emulator = Px4Emulator(self.world, EmulatorConfig(**self._emulator_kwargs), api_port=port)
+        self.emulator.start()
+        self.cfg = dataclasses.replace(
+            self.cfg, vehicle=dataclasses.replace(self.cfg.vehicle, url=f"udpin://127.0.0.1:{port}")
+        )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.emulator is not None:
+            self.emulator.stop()
+
+    def parts(self) -> dict[str, Any]:
+        """Keyword arguments for FlightDaemon: path, depth, odometry, vehicle, crash_probe."""
+        from sim_harness.camera import SimDepthCamera
+        from sim_harness.mocap import SimMocap
+        from sim_harness.render import CameraModel
+
+        emu, d = self.emulator, self.cfg.depth
+        camera = CameraModel(width=d.width, height=d.height)
+        return {
+            "path": self.path,
+            "depth": SimDepthCamera(
+                self.world,
+                _CameraPose(emu.true_pose, self.world.floor_z_m),
+                camera=camera,
+                fps=d.fps,
+                seed=self.seed,
+            ),
+            "odometry": SimMocap(emu.true_pose, seed=self.seed, **self._mocap_kwargs),
+            "vehicle": MavsdkVehicle(
+                self.cfg.vehicle.url,
+                connect_timeout_s=self.cfg.vehicle.connect_timeout_s,
+                command_timeout_s=self.cfg.vehicle.command_timeout_s,
+            ),
+            "crash_probe": lambda: bool(emu.crashed),
+        }
