@@ -1,0 +1,216 @@
+"""The daemon's lifecycle and supervisor responses, against in-memory fakes (quadnav_onboard.daemon.testing).
+
+Fast flights: 0.25 s steps of 0.25 m primitives along a 1.5 m path. End-to-end behaviour over real
+MAVLink is in test_daemon_e2e.py.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+from quadnav_onboard.config import PrimitiveConfig, parse_config
+from quadnav_onboard.daemon.app import FlightDaemon
+from quadnav_onboard.daemon.config import FlightConfig, MissionConfig, SafetyConfig
+from quadnav_onboard.daemon.testing import (
+    FakeDepthSource,
+    FakeOdometrySource,
+    FakeVehicle,
+    constant_action_checkpoint,
+)
+from quadnav_onboard.network import DQN, NetworkConfig
+from quadnav_onboard.path import RoughPath
+from quadnav_onboard.policy import Policy
+
+PATH = RoughPath(np.array([[0.0, 0.0, 1.0], [1.5, 0.0, 1.0]]), 1.0)
+FORWARD, LEFT_FORWARD = 4, 7
+
+
+def fast_config(**mission: object) -> FlightConfig:
+    prims = parse_config(PrimitiveConfig, {"scale_m": 0.25, "duration_s": 0.25})
+    return FlightConfig(
+        mission=MissionConfig(**{"takeoff_speed_m_s": 3.0, "max_steps": 40, "goal_radius_m": 0.2, **mission}),
+        primitives=prims,
+        safety=SafetyConfig(hold_before_land_s=0.05, land_timeout_s=5.0),
+    )
+
+
+@pytest.fixture(scope="module")
+def forward_policy(tmp_path_factory: pytest.TempPathFactory) -> Policy:
+    return Policy(constant_action_checkpoint(str(tmp_path_factory.mktemp("m") / "fwd.pt"), FORWARD))
+
+
+class Rig:
+    def __init__(self, policy: Policy, cfg: FlightConfig | None = None, **kw: object) -> None:
+        self.vehicle = FakeVehicle()
+        self.depth = FakeDepthSource(fps=30.0)
+        self.odom = FakeOdometrySource(lambda: self.vehicle.pos_world_m, rate_hz=100.0)
+        self.daemon = FlightDaemon(
+            cfg or fast_config(),
+            path=PATH,
+            policy=policy,
+            depth=self.depth,
+            odometry=self.odom,
+            vehicle=self.vehicle,
+            **kw,
+        )
+
+    def commands(self) -> list[str]:
+        return [c for _, c in self.vehicle.commands if c != "vision"]
+
+    async def when(self, cond, timeout_s: float = 5.0) -> None:
+        async with asyncio.timeout(timeout_s):
+            while not cond():
+                await asyncio.sleep(0.01)
+
+    async def in_mission_then(self, action, min_steps: int = 1):
+        async def go() -> None:
+            await self.when(
+                lambda: (
+                    self.daemon.in_mission
+                    and self.daemon.pending_step is not None
+                    and self.daemon.pending_step["step"] >= min_steps - 1
+                )
+            )
+            action()
+
+        trigger = asyncio.ensure_future(go())
+        summary = await asyncio.wait_for(self.daemon.run(), 15)
+        await trigger
+        return summary
+
+
+async def test_a_clear_path_is_flown_to_the_goal_then_held_and_landed(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "goal_reached" and s.exit_code == 0
+    assert rig.commands() == ["arm", "offboard_start", "hold", "land"]
+    assert s.navigation_distance_m > 1.2 and s.steps >= 5 and s.total_reward > 0
+    assert not rig.vehicle.state.armed  # landed and disarmed
+    assert s.decision_latency_ms["n"] == s.steps
+
+
+async def test_depth_feed_stopping_mid_flight_holds_then_lands(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(lambda: setattr(rig.depth, "paused", True), min_steps=2)
+    assert s.stop_reason == "stale_depth" and s.exit_code == 3
+    assert rig.commands()[-2:] == ["hold", "land"]
+    assert s.hold_reaction_ms is not None and s.hold_reaction_ms < 100
+
+
+async def test_mocap_dropout_holds(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(lambda: setattr(rig.odom, "paused", True))
+    assert s.stop_reason == "stale_odometry"
+    assert "hold" in rig.commands()
+
+
+async def test_nan_odometry_in_flight_stops(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(lambda: setattr(rig.odom, "nan", True))
+    assert s.stop_reason == "bad_odometry" and "hold" in rig.commands()
+
+
+async def test_wrong_dtype_depth_in_flight_stops(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(
+        lambda: setattr(rig.depth, "make", lambda i: np.ones((240, 424), np.float32))
+    )
+    assert s.stop_reason == "bad_depth" and "hold" in rig.commands()
+
+
+async def test_the_step_limit_holds(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy, fast_config(max_steps=2))
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "step_limit" and s.steps == 2 and rig.commands()[2] == "hold"
+
+
+async def test_leaving_the_path_past_the_deviation_limit_holds(tmp_path: Path) -> None:
+    policy = Policy(constant_action_checkpoint(str(tmp_path / "left.pt"), LEFT_FORWARD))
+    cfg = fast_config()
+    cfg = FlightConfig(
+        **{**cfg.__dict__, "safety": SafetyConfig(max_deviation_m=0.3, hold_before_land_s=0.05)}
+    )
+    rig = Rig(policy, cfg)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "deviation" and "hold" in rig.commands()
+
+
+async def test_a_pilot_taking_over_is_not_fought(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(lambda: rig.vehicle.set_mode("POSCTL"))
+    assert s.stop_reason == "pilot_takeover"
+    assert rig.commands() == ["arm", "offboard_start"]  # no hold, no land, no offboard restart
+    n = len(rig.vehicle.setpoints)
+    await asyncio.sleep(0.2)
+    assert len(rig.vehicle.setpoints) == n  # streaming stopped
+
+
+async def test_first_signal_holds_and_lands_second_forces_exit_after_hold(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(lambda: rig.daemon.handle_signal(signal.SIGTERM))
+    assert s.stop_reason == "operator_stop" and s.exit_code == 3
+    assert rig.commands()[-2:] == ["hold", "land"]
+
+    rig2 = Rig(forward_policy, fast_config(land_at_goal=True))
+    rig2.daemon.cfg = FlightConfig(
+        **{**rig2.daemon.cfg.__dict__, "safety": SafetyConfig(hold_before_land_s=5.0)}
+    )
+
+    def twice() -> None:
+        rig2.daemon.handle_signal(signal.SIGINT)
+        asyncio.get_running_loop().call_later(0.1, rig2.daemon.handle_signal, signal.SIGINT)
+
+    s2 = await rig2.in_mission_then(twice)
+    assert s2.stop_reason == "operator_stop"
+    assert "hold" in rig2.commands() and "land" not in rig2.commands()
+
+
+async def test_a_model_of_the_wrong_shape_is_refused_before_arming(tmp_path: Path) -> None:
+    torch.manual_seed(0)
+    path = save_checkpoint(tmp_path / "five.pt", DQN(NetworkConfig(n_actions=5)))
+    rig = Rig(Policy(load_checkpoint(path)))
+    s = await asyncio.wait_for(rig.daemon.run(), 10)
+    assert s.stop_reason == "preflight_failed" and s.exit_code == 2 and "model" in s.detail
+    assert rig.commands() == []
+
+
+async def test_nan_odometry_is_refused_before_arming(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy, FlightConfig(**{**fast_config().__dict__}))
+    rig.odom.nan = True
+    rig.daemon.cfg = FlightConfig(
+        **{**rig.daemon.cfg.__dict__, "vehicle": type(rig.daemon.cfg.vehicle)(health_timeout_s=0.3)}
+    )
+    s = await asyncio.wait_for(rig.daemon.run(), 10)
+    assert s.stop_reason == "preflight_failed" and "odometry" in s.detail and "NaN" in s.detail
+    assert rig.commands() == []
+
+
+async def test_all_invalid_depth_is_refused_before_arming(forward_policy: Policy) -> None:
+    rig = Rig(forward_policy)
+    rig.depth.depth_mm = 0
+    rig.daemon.cfg = FlightConfig(
+        **{**rig.daemon.cfg.__dict__, "vehicle": type(rig.daemon.cfg.vehicle)(health_timeout_s=0.3)}
+    )
+    s = await asyncio.wait_for(rig.daemon.run(), 10)
+    assert s.stop_reason == "preflight_failed" and "depth" in s.detail
+    assert rig.commands() == []
+
+
+async def test_a_failing_recorder_never_breaks_the_flight(forward_policy: Policy) -> None:
+    class Broken:
+        def __getattr__(self, name: str):
+            def boom(*a: object, **k: object) -> None:
+                raise OSError("disk full")
+
+            return boom
+
+    rig = Rig(forward_policy, recorder=Broken())
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "goal_reached"

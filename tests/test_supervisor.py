@@ -1,0 +1,157 @@
+"""Supervisor checks: pure functions of a snapshot and fake time."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from quadnav_onboard.daemon.config import SafetyConfig
+from quadnav_onboard.daemon.supervisor import (
+    ExitCode,
+    FlightSnapshot,
+    Response,
+    StopReason,
+    check_depth_frame,
+    check_in_flight,
+    check_odometry,
+    check_start_inside,
+    check_vehicle_ready,
+    response_for,
+)
+from quadnav_onboard.frames import quat_from_yaw
+from quadnav_onboard.preprocess import PreprocessConfig
+from quadnav_onboard.sources.base import DepthFrame, OdometrySample
+from quadnav_onboard.vehicle import VehicleState
+
+NOW = 100.0
+CFG = SafetyConfig()
+
+
+def healthy(**overrides: object) -> FlightSnapshot:
+    vehicle = VehicleState(connected=True, armed=True, mode="OFFBOARD", local_position_ok=True)
+    vehicle.t_last_msg_mono_s = NOW - 0.01
+    snap = FlightSnapshot(
+        t_mono_s=NOW,
+        vehicle=vehicle,
+        t_depth_mono_s=NOW - 0.03,
+        t_odom_mono_s=NOW - 0.008,
+        pos_world_m=np.array([1.0, 0.0, 1.5]),
+        deviation_m=0.1,
+        in_mission=True,
+    )
+    return dataclasses.replace(snap, **overrides)
+
+
+def test_a_healthy_flight_has_no_reason_to_stop() -> None:
+    assert check_in_flight(healthy(), CFG) is None
+
+
+@pytest.mark.parametrize(
+    ("overrides", "reason"),
+    [
+        ({"crashed": True}, StopReason.CRASH),
+        ({"t_depth_mono_s": NOW - 0.31}, StopReason.STALE_DEPTH),
+        ({"t_odom_mono_s": NOW - 0.11}, StopReason.STALE_ODOMETRY),
+        ({"pos_world_m": np.array([1.0, math.nan, 1.5])}, StopReason.BAD_ODOMETRY),
+        ({"depth_error": "depth frame of dtype float32"}, StopReason.BAD_DEPTH),
+        ({"pos_world_m": np.array([150.0, 0.0, 1.5])}, StopReason.GEOFENCE),
+        ({"pos_world_m": np.array([1.0, 0.0, 0.1])}, StopReason.ALTITUDE),
+        ({"deviation_m": 5.01}, StopReason.DEVIATION),
+        ({"inference_s": 0.26}, StopReason.INFERENCE_OVERRUN),
+    ],
+)
+def test_each_limit_past_its_threshold_names_its_reason(overrides: dict, reason: StopReason) -> None:
+    found = check_in_flight(healthy(**overrides), CFG)
+    assert found is not None and found[0] is reason, found
+
+
+def test_values_just_inside_the_limits_do_not_stop() -> None:
+    snap = healthy(t_depth_mono_s=NOW - 0.29, t_odom_mono_s=NOW - 0.09, deviation_m=4.99, inference_s=0.24)
+    assert check_in_flight(snap, CFG) is None
+
+
+def test_altitude_floor_and_deviation_apply_only_once_the_mission_began() -> None:
+    low = healthy(pos_world_m=np.array([0.0, 0.0, 0.05]), deviation_m=9.0, in_mission=False)
+    assert check_in_flight(low, CFG) is None
+
+
+def test_link_silence_is_link_lost_and_outranks_stale_sensors() -> None:
+    snap = healthy(t_depth_mono_s=NOW - 5, t_odom_mono_s=NOW - 5)
+    snap.vehicle.t_last_msg_mono_s = NOW - 0.6
+    found = check_in_flight(snap, CFG)
+    assert found is not None and found[0] is StopReason.LINK_LOST
+
+
+def test_a_mode_change_is_a_pilot_takeover_that_releases_the_vehicle() -> None:
+    snap = healthy()
+    snap.vehicle.mode = "POSCTL"
+    found = check_in_flight(snap, CFG)
+    assert found is not None and found[0] is StopReason.PILOT_TAKEOVER
+    assert response_for(StopReason.PILOT_TAKEOVER) is Response.RELEASE
+    assert response_for(StopReason.LINK_LOST) is Response.RELEASE
+    assert response_for(StopReason.STALE_DEPTH) is Response.LADDER
+
+
+def test_exit_codes_tell_success_abort_refusal_crash_and_error_apart() -> None:
+    assert StopReason.GOAL_REACHED.exit_code is ExitCode.SUCCESS
+    assert StopReason.STEP_LIMIT.exit_code is ExitCode.SAFE_ABORT
+    assert StopReason.OPERATOR_STOP.exit_code is ExitCode.SAFE_ABORT
+    assert StopReason.PREFLIGHT_FAILED.exit_code is ExitCode.REFUSED
+    assert StopReason.CRASH.exit_code is ExitCode.CRASH
+    assert StopReason.INTERNAL_ERROR.exit_code is ExitCode.ERROR
+    assert len({int(c) for c in ExitCode}) == len(ExitCode)
+
+
+# --- pre-flight ---------------------------------------------------------------------------------
+
+
+def frame(arr: np.ndarray, age_s: float = 0.01) -> DepthFrame:
+    return DepthFrame(arr, NOW - age_s, 1)
+
+
+def test_preflight_accepts_a_fresh_valid_depth_frame() -> None:
+    assert check_depth_frame(frame(np.full((240, 424), 3000, np.uint16)), NOW, 0.3, PreprocessConfig()).ok
+
+
+@pytest.mark.parametrize(
+    ("arr", "age", "needle"),
+    [
+        (None, 0.0, "no depth frame"),
+        (np.full((240, 424), 3000, np.uint16), 1.0, "old"),
+        (np.full((240, 424), 3.0, np.float32), 0.0, "dtype"),
+        (np.full((240,), 3000, np.uint16), 0.0, "shape"),
+        (np.zeros((240, 424), np.uint16), 0.0, "valid pixels"),
+    ],
+)
+def test_preflight_refuses_missing_stale_wrong_or_blind_depth(arr, age: float, needle: str) -> None:
+    check = check_depth_frame(None if arr is None else frame(arr, age), NOW, 0.3, PreprocessConfig())
+    assert not check.ok and check.name == "depth" and needle in check.detail
+
+
+def test_preflight_odometry_refuses_nan_stale_and_bad_quaternions() -> None:
+    good = OdometrySample(np.array([0.0, 0.0, 0.0]), quat_from_yaw(0.3), NOW - 0.01)
+    assert check_odometry(good, NOW, 0.1).ok
+    nan = dataclasses.replace(good, pos_world_m=np.array([np.nan, 0.0, 0.0]))
+    assert "NaN" in check_odometry(nan, NOW, 0.1).detail
+    stale = dataclasses.replace(good, t_arrival_mono_s=NOW - 0.5)
+    assert not check_odometry(stale, NOW, 0.1).ok
+    skew = dataclasses.replace(good, quat_world_body=np.array([2.0, 0.0, 0.0, 0.0]))
+    assert "unit" in check_odometry(skew, NOW, 0.1).detail
+    assert not check_odometry(None, NOW, 0.1).ok
+
+
+def test_preflight_vehicle_needs_local_position_and_refuses_an_armed_vehicle() -> None:
+    v = VehicleState(connected=True, local_position_ok=False)
+    assert "local position" in check_vehicle_ready(v).detail
+    v.local_position_ok = True
+    assert check_vehicle_ready(v).ok
+    v.armed = True
+    assert "already armed" in check_vehicle_ready(v).detail
+
+
+def test_preflight_path_start_must_be_inside_the_geofence() -> None:
+    assert check_start_inside([0.0, 0.0, 1.5], CFG).ok
+    assert not check_start_inside([0.0, 0.0, 20.0], CFG).ok
