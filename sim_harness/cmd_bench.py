@@ -155,7 +155,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("bench", help="measure rendering and env-step speed",
-                              description=__doc__.split("\n")[0])
+                              description="Measure rendering (and env-step) speed; print the figures "
+                              "with the core count, or as JSON.")
     p.add_argument("--json", action="store_true", help="print the figures as JSON instead of text")
     p.add_argument("--out", metavar="PATH", help="also write the JSON figures to PATH")
     p.add_argument("--seconds", type=float, default=2.0, help="time per measurement (s)")

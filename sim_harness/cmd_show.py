@@ -44,7 +44,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("show", help="draw a world (top and side views, optional camera view) as PNG",
-                              description=__doc__.split("\n")[0])
+                              description="Draw a world (top and side views; with --pose, also the camera's "
+                              "depth image and the 32x32 network input) as a PNG.")
     p.add_argument("world", metavar="WORLD", help="world YAML file, paper world id (env04), or 'all'")
     p.add_argument("--pose", nargs=4, type=float, metavar=("X", "Y", "Z", "YAW_DEG"),
                    help="also render the depth camera at this pose (world m, yaw deg)")
