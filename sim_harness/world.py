@@ -158,9 +158,13 @@ class Geometry:
         return cls(*arrays, floor_z_m=floor, ceiling_z_m=ceiling)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class World:
-    """A world: where to fly (``path``), what bounds it and what is in the way."""
+    """A world: where to fly (``path``), what bounds it and what is in the way.
+
+    Compared and hashed by identity (its path holds arrays), so worlds can key dicts and be found
+    in lists; compare ``world_to_mapping`` results for equality of content.
+    """
 
     name: str
     """Short identifier, e.g. ``env04-slalom-lr``."""

@@ -126,6 +126,12 @@ def test_round_trip_through_mapping() -> None:
     np.testing.assert_array_equal(back.geometry.half_m, w.geometry.half_m)
 
 
+def test_worlds_key_dicts_and_are_found_in_lists() -> None:
+    """A World is hashable and compares by identity, so `in`, `.index` and dict keys work."""
+    a, b = load_world(paper_world_path(2)), load_world(paper_world_path(2))
+    assert {a: 1, b: 2}[b] == 2 and [a, b].index(b) == 1 and a in [a] and a != b
+
+
 def test_resolve_world_arg_accepts_ids_and_paths(tmp_path: Path) -> None:
     """`env04`, `4` and a file path all resolve; junk is a WorldError."""
     assert resolve_world_arg("env04") == paper_world_path(4) == resolve_world_arg("4")
