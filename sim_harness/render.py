@@ -107,18 +107,8 @@ _JIT = {"cache": _can_cache(), "nogil": True, "fastmath": False, "error_model": 
 
 
 @numba.njit(**_JIT)
-def _hit_t(
-    kind: int,
-    o0: float,
-    o1: float,
-    o2: float,
-    d0: float,
-    d1: float,
-    d2: float,
-    h0: float,
-    h1: float,
-    h2: float,
-) -> float:  # pragma: no cover - compiled
+def _hit_t(kind: int, o0: float, o1: float, o2: float, d0: float, d1: float, d2: float,
+           h0: float, h1: float, h2: float) -> float:  # pragma: no cover - compiled
     """Ray parameter of the first hit (inf if none; 0 if the origin is inside); local frame."""
     if kind == 1:  # sphere
         a = d0 * d0 + d1 * d1 + d2 * d2
@@ -168,9 +158,8 @@ def _hit_t(
 
 
 @numba.njit(**_JIT)
-def _slope_range(
-    c_fwd: float, c_side: float, r: float, t0: float, dt: float, n: int
-) -> tuple[int, int]:  # pragma: no cover - compiled
+def _slope_range(c_fwd: float, c_side: float, r: float, t0: float, dt: float,
+                 n: int) -> tuple[int, int]:  # pragma: no cover - compiled
     """Index range [lo, hi) of a regular slope grid ``t0 + k*dt`` (dt < 0) that can see a bounding
     circle (centre ``(c_fwd, c_side)``, radius r) in the camera's (forward, side) plane."""
     dist2 = c_fwd * c_fwd + c_side * c_side
@@ -191,9 +180,8 @@ def _slope_range(
 
 
 @numba.njit(**_JIT)
-def _index_range(
-    s_lo: float, s_hi: float, t0: float, dt: float, n: int
-) -> tuple[int, int]:  # pragma: no cover - compiled
+def _index_range(s_lo: float, s_hi: float, t0: float, dt: float,
+                 n: int) -> tuple[int, int]:  # pragma: no cover - compiled
     """Index range [lo, hi) of the regular slope grid ``t0 + k*dt`` (dt < 0) covering [s_lo, s_hi]."""
     k_lo = max(0, math.floor((s_hi - t0) / dt))
     k_hi = min(n, math.ceil((s_lo - t0) / dt) + 1)
@@ -201,27 +189,42 @@ def _index_range(
 
 
 @numba.njit(**_JIT)
-def _cast_item(
-    n, r_lo, r_hi, origins, rots, ty, tz, dty, dtz, kind, center, orot, half, bound_r, floor_z, ceiling_z,
-    max_t, out,
-):  # pragma: no cover - compiled
-    """Rows [r_lo, r_hi) of image n: the ray parameter (= z-depth) of the nearest hit, inf if none."""
-    n_row, n_col = out.shape[1], out.shape[2]
-    ox, oy, oz = origins[n, 0], origins[n, 1], origins[n, 2]
-    r = rots[n]
-    mm = np.empty((3, 3))  # per obstacle: the body axes in the obstacle frame, q.T @ r
-    # nearest first, so that pixels already nearer than an obstacle can skip it
-    near = np.empty(kind.shape[0])
-    for m in range(kind.shape[0]):
-        near[m] = (
-            r[0, 0] * (center[m, 0] - ox)
-            + r[1, 0] * (center[m, 1] - oy)
-            + r[2, 0] * (center[m, 2] - oz)
-            - bound_r[m]
-        )
-    order = np.argsort(near)
+def _screen_rect(cx, cy, cz, br, mm, kind, h0, h1, h2, ty, tz, dty, dtz):  # pragma: no cover - compiled
+    """Pixel rectangle [i0, i1) x [j0, j1) that can see an obstacle (centre (cx, cy, cz) in the
+    camera frame, bounding radius br, body axes in its frame mm), and a lower bound on its z-depth.
+
+    From the slopes of its oriented bounding box's 8 corners when all are in front of the camera
+    (exact for a convex hull), else from its bounding sphere's cone."""
+    ok = kind != 1
+    sy_lo, sy_hi, sz_lo, sz_hi, z_obb = np.inf, -np.inf, np.inf, -np.inf, np.inf
+    if ok:
+        for corner in range(8):
+            e0 = h0 if corner & 1 else -h0
+            e1 = h1 if corner & 2 else -h1
+            e2 = h2 if corner & 4 else -h2
+            px = cx + mm[0, 0] * e0 + mm[1, 0] * e1 + mm[2, 0] * e2
+            if px < 1e-6:
+                ok = False
+                break
+            sy = (cy + mm[0, 1] * e0 + mm[1, 1] * e1 + mm[2, 1] * e2) / px
+            sz = (cz + mm[0, 2] * e0 + mm[1, 2] * e1 + mm[2, 2] * e2) / px
+            z_obb = min(z_obb, px)
+            sy_lo, sy_hi = min(sy_lo, sy), max(sy_hi, sy)
+            sz_lo, sz_hi = min(sz_lo, sz), max(sz_hi, sz)
+    if ok:
+        j0, j1 = _index_range(sy_lo, sy_hi, ty[0], dty, ty.shape[0])
+        i0, i1 = _index_range(sz_lo, sz_hi, tz[0], dtz, tz.shape[0])
+        return i0, i1, j0, j1, max(cx - br, z_obb)
+    j0, j1 = _slope_range(cx, cy, br, ty[0], dty, ty.shape[0])
+    i0, i1 = _slope_range(cx, cz, br, tz[0], dtz, tz.shape[0])
+    return i0, i1, j0, j1, cx - br
+
+
+@numba.njit(**_JIT)
+def _cast_planes(n, r_lo, r_hi, oz, r, ty, tz, floor_z, ceiling_z, out):  # pragma: no cover - compiled
+    """Rows [r_lo, r_hi) of image n: ray parameter of the floor or ceiling hit (inf: none, 0: outside)."""
     for i in range(r_lo, r_hi):
-        for j in range(n_col):
+        for j in range(out.shape[2]):
             dz = r[2, 0] + ty[j] * r[2, 1] + tz[i] * r[2, 2]
             t = np.inf
             if oz <= floor_z or oz >= ceiling_z:
@@ -231,48 +234,36 @@ def _cast_item(
             elif dz > 0.0:
                 t = (ceiling_z - oz) / dz
             out[n, i, j] = t
-    for m in order:
+
+
+@numba.njit(**_JIT)
+def _cast_item(n, r_lo, r_hi, origins, rots, ty, tz, dty, dtz, kind, center, orot, half, bound_r,
+               floor_z, ceiling_z, max_t, out):  # pragma: no cover - compiled
+    """Rows [r_lo, r_hi) of image n: the ray parameter (= z-depth) of the nearest hit, inf if none."""
+    ox, oy, oz = origins[n, 0], origins[n, 1], origins[n, 2]
+    r = rots[n]
+    _cast_planes(n, r_lo, r_hi, oz, r, ty, tz, floor_z, ceiling_z, out)
+    # obstacles nearest first, so that pixels already nearer than an obstacle can skip it
+    near = np.empty(kind.shape[0])
+    for m in range(kind.shape[0]):
+        near[m] = (r[0, 0] * (center[m, 0] - ox) + r[1, 0] * (center[m, 1] - oy)
+                   + r[2, 0] * (center[m, 2] - oz) - bound_r[m])
+    mm = np.empty((3, 3))  # per obstacle: the body axes in the obstacle frame, q.T @ r
+    for m in np.argsort(near):
         wx, wy, wz = center[m, 0] - ox, center[m, 1] - oy, center[m, 2] - oz
         cx = r[0, 0] * wx + r[1, 0] * wy + r[2, 0] * wz  # centre in the camera (body) frame
         cy = r[0, 1] * wx + r[1, 1] * wy + r[2, 1] * wz
         cz = r[0, 2] * wx + r[1, 2] * wy + r[2, 2] * wz
-        br = bound_r[m]
-        if cx < -br or cx - br > max_t:
+        if cx < -bound_r[m] or cx - bound_r[m] > max_t:
             continue
         q = orot[m]
         for a in range(3):
             for b in range(3):
                 mm[a, b] = q[0, a] * r[0, b] + q[1, a] * r[1, b] + q[2, a] * r[2, b]
-        k = kind[m]
-        h0, h1, h2 = half[m, 0], half[m, 1], half[m, 2]
-        # screen rectangle: slopes of the 8 corners of the oriented bounding box when they are
-        # all in front of the camera (exact for a convex hull), else the bounding sphere's cone
-        ok = k != 1
-        z_near = cx - br  # no point of the obstacle is nearer (z-depth) than this
-        sy_lo, sy_hi, sz_lo, sz_hi, z_obb = np.inf, -np.inf, np.inf, -np.inf, np.inf
-        if ok:
-            for corner in range(8):
-                e0 = h0 if corner & 1 else -h0
-                e1 = h1 if corner & 2 else -h1
-                e2 = h2 if corner & 4 else -h2
-                px = cx + mm[0, 0] * e0 + mm[1, 0] * e1 + mm[2, 0] * e2
-                if px < 1e-6:
-                    ok = False
-                    break
-                sy = (cy + mm[0, 1] * e0 + mm[1, 1] * e1 + mm[2, 1] * e2) / px
-                sz = (cz + mm[0, 2] * e0 + mm[1, 2] * e1 + mm[2, 2] * e2) / px
-                z_obb = min(z_obb, px)
-                sy_lo, sy_hi = min(sy_lo, sy), max(sy_hi, sy)
-                sz_lo, sz_hi = min(sz_lo, sz), max(sz_hi, sz)
-        if ok:
-            z_near = max(z_near, z_obb)
-            j0, j1 = _index_range(sy_lo, sy_hi, ty[0], dty, n_col)
-            i0, i1 = _index_range(sz_lo, sz_hi, tz[0], dtz, n_row)
-        else:
-            j0, j1 = _slope_range(cx, cy, br, ty[0], dty, n_col)
-            i0, i1 = _slope_range(cx, cz, br, tz[0], dtz, n_row)
+        k, h0, h1, h2 = kind[m], half[m, 0], half[m, 1], half[m, 2]
+        i0, i1, j0, j1, z_near = _screen_rect(cx, cy, cz, bound_r[m], mm, k, h0, h1, h2, ty, tz, dty, dtz)
         i0, i1 = max(i0, r_lo), min(i1, r_hi)
-        if j0 >= j1 or i0 >= i1:
+        if i0 >= i1 or j0 >= j1:
             continue
         # ray origin in the obstacle frame; ray directions from the body-axis images in mm
         lo0 = -(q[0, 0] * wx + q[1, 0] * wy + q[2, 0] * wz)
@@ -285,18 +276,8 @@ def _cast_item(
             for j in range(j0, j1):
                 if out[n, i, j] <= z_near:
                     continue
-                t = _hit_t(
-                    k,
-                    lo0,
-                    lo1,
-                    lo2,
-                    b0 + ty[j] * mm[0, 1],
-                    b1 + ty[j] * mm[1, 1],
-                    b2 + ty[j] * mm[2, 1],
-                    h0,
-                    h1,
-                    h2,
-                )
+                t = _hit_t(k, lo0, lo1, lo2, b0 + ty[j] * mm[0, 1], b1 + ty[j] * mm[1, 1],
+                           b2 + ty[j] * mm[2, 1], h0, h1, h2)
                 if t < out[n, i, j]:
                     out[n, i, j] = t
 
@@ -366,9 +347,8 @@ def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: n
                 out[n, i, j] = acc * inv
 
 
-def _poses(
-    pos_world_m: ArrayLike, rot: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _poses(pos_world_m: ArrayLike,
+           rot: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     pos = np.ascontiguousarray(np.atleast_2d(np.asarray(pos_world_m, dtype=np.float64)))
     if pos.ndim != 2 or pos.shape[1] != 3 or not np.all(np.isfinite(pos)):
         raise ValueError(f"positions must be finite with shape (N, 3), got shape {pos.shape}")
@@ -376,14 +356,8 @@ def _poses(
     return pos, rot
 
 
-def cast_depth_m(
-    geometry: Geometry,
-    pos_world_m: ArrayLike,
-    rot_world_body: ArrayLike,
-    camera: CameraModel,
-    supersample: int = 1,
-    parallel: bool | None = None,
-) -> NDArray[np.float64]:
+def cast_depth_m(geometry: Geometry, pos_world_m: ArrayLike, rot_world_body: ArrayLike, camera: CameraModel,
+                 supersample: int = 1, parallel: bool | None = None) -> NDArray[np.float64]:
     """Raw ray cast: z-depth (m) of the nearest surface, inf where nothing is hit, 0 inside a solid.
 
     ``pos_world_m`` (N, 3), ``rot_world_body`` (N, 3, 3) body->world; returns (N, H*s, W*s) float64.
@@ -400,22 +374,9 @@ def cast_depth_m(
     threads = numba.get_num_threads()
     n_band = 1 if pos.shape[0] >= 4 * threads or not parallel else min(tz.size, 4 * threads)
     g = geometry
-    (_cast_parallel if parallel else _cast_serial)(
-        pos,
-        rot,
-        ty,
-        tz,
-        g.kind,
-        g.center_m,
-        g.rot_m,
-        g.half_m,
-        g.bound_r_m,
-        g.floor_z_m,
-        g.ceiling_z_m,
-        camera.max_range_m,
-        n_band,
-        out,
-    )
+    (_cast_parallel if parallel else _cast_serial)(pos, rot, ty, tz, g.kind, g.center_m, g.rot_m, g.half_m,
+                                                   g.bound_r_m, g.floor_z_m, g.ceiling_z_m,
+                                                   camera.max_range_m, n_band, out)
     return out
 
 
@@ -425,9 +386,8 @@ def _yaw_rot(pos_world_m: ArrayLike, yaw_rad: ArrayLike) -> tuple[NDArray[np.flo
     return pos, rotmat_yaw(yaw)
 
 
-def render_depth_m(
-    world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike, camera: CameraModel = D435_424x240
-) -> NDArray[np.float32]:
+def render_depth_m(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
+                   camera: CameraModel = D435_424x240) -> NDArray[np.float32]:
     """Noise-free depth images (z-depth, m; 0 = no return) at level attitude, shape (N, H, W) float32.
 
     ``pos_world_m`` (N, 3) camera/body positions (world), ``yaw_rad`` (N,) headings (world yaw).
@@ -439,15 +399,9 @@ def render_depth_m(
     return out
 
 
-def render_network_inputs(
-    world: World,
-    pos_world_m: ArrayLike,
-    yaw_rad: ArrayLike,
-    preprocess: PreprocessConfig = PreprocessConfig(),
-    *,
-    camera: CameraModel = D435_424x240,
-    supersample: int = 2,
-) -> NDArray[np.float32]:
+def render_network_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
+                          preprocess: PreprocessConfig = PreprocessConfig(), *,
+                          camera: CameraModel = D435_424x240, supersample: int = 2) -> NDArray[np.float32]:
     """The training path: network inputs (N, 32, 32) float32 in [0, 1], level attitude.
 
     Casts ``supersample``² rays per output pixel with ``camera``'s field of view and range rules
@@ -457,32 +411,19 @@ def render_network_inputs(
     """
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
-    cam32 = CameraModel(
-        OUT_SIZE, OUT_SIZE, camera.hfov_deg, camera.vfov_deg, camera.min_range_m, camera.max_range_m
-    )
+    cam32 = CameraModel(OUT_SIZE, OUT_SIZE, camera.hfov_deg, camera.vfov_deg, camera.min_range_m,
+                        camera.max_range_m)
     pos, rot = _yaw_rot(pos_world_m, yaw_rad)
     t = cast_depth_m(world.geometry, pos, rot, cam32, supersample)
     out = np.empty((pos.shape[0], OUT_SIZE, OUT_SIZE), dtype=np.float32)
-    _pool_normalized(
-        t,
-        supersample,
-        camera.min_range_m,
-        camera.max_range_m,
-        preprocess.min_range_m,
-        preprocess.max_range_m,
-        out,
-    )
+    _pool_normalized(t, supersample, camera.min_range_m, camera.max_range_m, preprocess.min_range_m,
+                     preprocess.max_range_m, out)
     return out
 
 
-def render_frame_mm(
-    world: World,
-    pos_world_m: ArrayLike,
-    quat_world_body: ArrayLike,
-    camera: CameraModel = D435_424x240,
-    noise: DepthNoise | None = None,
-    rng: np.random.Generator | None = None,
-) -> NDArray[np.uint16]:
+def render_frame_mm(world: World, pos_world_m: ArrayLike, quat_world_body: ArrayLike,
+                    camera: CameraModel = D435_424x240, noise: DepthNoise | None = None,
+                    rng: np.random.Generator | None = None) -> NDArray[np.uint16]:
     """One full camera frame as a D435 delivers it: uint16 depth in mm, shape (H, W), 0 = invalid.
 
     ``pos_world_m`` (3,) and ``quat_world_body`` (w, x, y, z) give the full body pose (roll and
