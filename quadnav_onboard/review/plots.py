@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import matplotlib
@@ -58,10 +59,16 @@ def t_zero(rec: FlightRecord) -> float:
 
 
 def world_of(rec: FlightRecord) -> dict[str, Any] | None:
-    """The world (sim-harness world-file mapping) stored in the record's ``world_yaml`` metadata."""
+    """The world (sim-harness world-file mapping): metadata ``world_yaml``, else the file ``world`` names."""
     text = rec.info.get("world_yaml")
-    if not text:
-        return None
+    if not text:  # older records name the world file; use it if it is on this machine
+        ref = rec.info.get("world", "")
+        if not ref.endswith((".yaml", ".yml")) or not Path(ref).is_file():
+            return None
+        try:
+            text = Path(ref).read_text(encoding="utf-8")
+        except OSError:
+            return None
     try:
         world = yaml.safe_load(text)
     except yaml.YAMLError:

@@ -12,12 +12,15 @@ and collision-free flights.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from quadnav_onboard.record.reader import FlightRecord
 
@@ -32,6 +35,7 @@ __all__ = [
     "row_from_record",
     "row_from_summary",
     "summary_value",
+    "world_name",
 ]
 
 SUMMARY_KEYS = (
@@ -44,8 +48,9 @@ SUMMARY_KEYS = (
 )
 """Keys of the flight summary (``close(summary=...)``) that make the paper's row:
 navigation distance (m, progress along the rough path), navigation time (s, from the first
-decision to the stop), crashed (bool), total reward (sum over steps), reached_goal (bool; default:
-stop reason ``goal_reached``), steps (decisions taken). Aliases: :data:`SUMMARY_ALIASES`."""
+decision to the end of the last primitive), crashed (bool), total reward (sum over steps),
+reached_goal (bool; default: stop reason ``goal_reached``), steps (decisions taken).
+Aliases: :data:`SUMMARY_ALIASES`."""
 
 SUMMARY_ALIASES: dict[str, tuple[str, ...]] = {"navigation_time_s": ("flight_time_s",)}
 """Other names accepted for a summary key (the daemon's FlightSummary says ``flight_time_s``)."""
@@ -103,11 +108,12 @@ def numbers_from_steps(rec: FlightRecord) -> dict[str, Any]:
     progress = rec.step_array("progress_m")
     reward = rec.step_array("reward")
     t = rec.step_t_s
-    if rec.stop is not None:
+    if n > 1:  # the last decision's primitive runs one step interval (the stop may come later: landing)
+        t_end = float(t[-1]) + float(np.median(np.diff(t)))
+    elif rec.stop is not None:
         t_end = float(rec.stop["t_mono_s"])
     else:
-        dt = float(np.median(np.diff(t))) if n > 1 else 0.0
-        t_end = float(t[-1]) + dt
+        t_end = float(t[-1])
     return {
         "navigation_distance_m": float(np.nanmax(progress)) if np.any(np.isfinite(progress)) else 0.0,
         "navigation_time_s": max(0.0, t_end - float(t[0])),
@@ -166,10 +172,9 @@ def row_from_record(rec: FlightRecord) -> FlightRow:
             values[key] = computed[key]
             if key not in ("crashed", "reached_goal"):  # these follow from the stop reason
                 used.add("steps")
-    info = rec.info
     return FlightRow(
         record=rec.name,
-        world=info.get("world", info.get("world_name", "")),
+        world=world_name(rec.info),
         navigation_distance_m=float(values["navigation_distance_m"]),
         navigation_time_s=float(values["navigation_time_s"]),
         crashed=bool(values["crashed"]),
@@ -181,6 +186,24 @@ def row_from_record(rec: FlightRecord) -> FlightRow:
         complete=rec.complete,
         source="+".join(s for s in ("summary", "steps") if s in used),
     )
+
+
+def world_name(info: Mapping[str, str]) -> str:
+    """The world's name from record metadata: ``world_name``, the ``name`` in ``world_yaml``, else
+    ``world`` (a world file path: the name inside it when readable, else the file's stem)."""
+    if info.get("world_name"):
+        return info["world_name"]
+    ref = info.get("world") or ""
+    text = info.get("world_yaml")
+    if not text and ref.endswith((".yaml", ".yml")):
+        with contextlib.suppress(OSError):
+            text = Path(ref).read_text(encoding="utf-8")
+    if text:
+        with contextlib.suppress(yaml.YAMLError):
+            data = yaml.safe_load(text)
+            if isinstance(data, dict) and isinstance(data.get("name"), str):
+                return data["name"]
+    return Path(ref).stem if ref.endswith((".yaml", ".yml")) else ref
 
 
 def format_row(row: FlightRow) -> str:

@@ -1,0 +1,87 @@
+"""End to end: a dry-run flight (real daemon, real MAVSDK, emulated PX4) leaves a record whose
+review prints exactly the row the daemon printed at the end of the flight."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from quadnav_onboard.daemon.testing import constant_action_checkpoint
+from quadnav_onboard.record import read_record
+
+SHORT_WORLD = """\
+name: short-free
+description: a 5 m obstacle-free corridor for a quick dry run
+path: {waypoints: [[0, 0, 2], [5, 0, 2]], speed_m_s: 1.0}
+bounds: {floor_z: 0.0, ceiling_z: 6.0}
+"""
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_dry_run_record_reviews_to_the_row_the_daemon_printed(tmp_path):
+    """The review's row equals the daemon's printed row; the record holds the whole flight."""
+    model = tmp_path / "straight.pt"
+    constant_action_checkpoint(str(model), action=4)
+    world = tmp_path / "short.yaml"
+    world.write_text(SHORT_WORLD)
+    rec_dir = tmp_path / "records"
+    flight = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "quadnav_onboard.cli",
+            "--dry-run",
+            "--world",
+            str(world),
+            "--model",
+            str(model),
+            "--record-dir",
+            str(rec_dir),
+            "--log-format",
+            "json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=150,
+        check=False,
+    )
+    assert flight.returncode == 0, flight.stderr[-2000:]
+    daemon_row = flight.stdout.splitlines()[0]
+    assert daemon_row.startswith("navigation distance ") and "stop: goal_reached" in daemon_row
+    records = sorted(rec_dir.glob("*.mcap"))
+    assert len(records) == 1
+
+    review = subprocess.run(
+        [sys.executable, "-m", "quadnav_onboard.review.cli", str(records[0])],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert review.returncode == 0, review.stderr
+    assert review.stdout.splitlines()[1] == daemon_row
+    assert "warning" not in review.stderr  # the summary agrees with the recorded decisions
+
+    rec = read_record(records[0])
+    assert rec.complete and rec.stop["stop_reason"] == "goal_reached"
+    assert not any((rec.stop.get("dropped") or {}).values())
+    n = rec.stop["summary"]["steps"]
+    assert [s["step"] for s in rec.steps] == list(range(n))
+    assert sorted(s for _, s, _ in rec.network_inputs) == list(range(n))
+    assert len(rec.depth) > 0 and len(rec.odom_t_s) > 10 * n and len(rec.setpoint_t_s) > 10 * n
+    assert "OFFBOARD" in {v["mode"] for v in rec.vehicle}
+    assert rec.info["model_sha256"] and rec.path_waypoints_m is not None
+
+    as_json = subprocess.run(
+        [sys.executable, "-m", "quadnav_onboard.review.cli", str(records[0]), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    row = json.loads(as_json.stdout)
+    assert row["world"] == "short-free" and row["source"] == "summary" and row["reached_goal"] is True
