@@ -149,7 +149,7 @@ def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_pa
         else:
             from quadnav_onboard.daemon.hardware import hardware_parts
 
-            parts = hardware_parts(cfg)
+            parts = hardware_parts(cfg, args.config or "config")
         recorder = _open_recorder(cfg, meta)
         if recorder is not None:
             with contextlib.suppress(Exception):

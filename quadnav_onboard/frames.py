@@ -25,6 +25,7 @@ __all__ = [
     "body_to_world",
     "enu_to_ned",
     "ned_to_enu",
+    "quat_from_rotmat",
     "quat_from_yaw",
     "quat_multiply",
     "quat_to_rotmat",
@@ -143,6 +144,31 @@ def quat_to_rotmat(q: ArrayLike) -> NDArray[np.float64]:
         ],
         axis=-2,
     )
+
+
+def quat_from_rotmat(r: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (child -> parent), shape (3, 3).
+
+    Inverse of :func:`quat_to_rotmat` (Shepperd's method: numerically safe for every rotation).
+    """
+    m = np.asarray(r, dtype=np.float64)
+    if m.shape != (3, 3) or not np.allclose(m @ m.T, np.eye(3), atol=1e-6) or np.linalg.det(m) <= 0:
+        raise ValueError(f"not a rotation matrix: {m.tolist()}")
+    tr = np.trace(m)
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = np.array([(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s])
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = np.array([(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = np.array([(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s])
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
 
 
 def quat_to_yaw(q: ArrayLike) -> NDArray[np.float64]:

@@ -17,6 +17,7 @@ import asyncio
 import contextlib
 import math
 import time
+from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -31,6 +32,7 @@ from quadnav_onboard.frames import (
     yaw_enu_to_ned,
 )
 from quadnav_onboard.logs import get_logger
+from quadnav_onboard.sources.base import OdometrySample
 
 __all__ = ["MavsdkVehicle", "VehicleError", "VehicleLink", "VehicleState"]
 
@@ -252,6 +254,17 @@ class MavsdkVehicle:
         )
         async with asyncio.timeout(self.command_timeout_s):
             await self._mocap.set_vision_position_estimate(msg)
+
+    async def odometry_samples(self) -> AsyncIterator[OdometrySample]:
+        """PX4's own estimate (ODOMETRY) as world-frame samples, stamped on arrival."""
+        while self._telemetry is None:  # the daemon connects after the sources open
+            await asyncio.sleep(0.05)
+        async for odo in self._telemetry.subscribe_odometry():
+            t = self._touch()
+            p, q = odo.position_body, odo.q
+            pos = ned_to_enu([p.x_m, p.y_m, p.z_m])
+            quat = quat_world_to_ned([q.w, q.x, q.y, q.z])  # its own inverse: FRD/NED -> FLU/world
+            yield OdometrySample(pos, quat, t)
 
     async def close(self) -> None:
         if self._mavsdk is not None:

@@ -1,0 +1,49 @@
+"""Real-vehicle wiring: sources and the vehicle link from the flight config (no sim imports)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from quadnav_onboard.config import ConfigError
+from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.path import RoughPath
+from quadnav_onboard.vehicle import MavsdkVehicle
+
+__all__ = ["hardware_parts"]
+
+
+def hardware_parts(cfg: FlightConfig, source: str = "config") -> dict[str, Any]:
+    """Keyword arguments for FlightDaemon: path, depth, odometry, vehicle (raises ConfigError)."""
+    if cfg.mission.waypoints_m is None:
+        raise ConfigError(f"{source}: key 'mission.waypoints_m': required for a flight (got None)")
+    path = RoughPath(cfg.mission.waypoints_m, cfg.mission.speed_m_s)
+    v = cfg.vehicle
+    vehicle = MavsdkVehicle(
+        v.url, connect_timeout_s=v.connect_timeout_s, command_timeout_s=v.command_timeout_s
+    )
+    d = cfg.depth
+    if d.kind == "uvc":
+        from quadnav_onboard.sources.uvc import UvcDepthSource
+
+        depth: Any = UvcDepthSource(d.device, d.width, d.height, d.fps)
+    elif d.kind == "replay":
+        from quadnav_onboard.sources.replay import ReplayDepthSource
+
+        if d.folder is None:
+            raise ConfigError(f"{source}: key 'depth.folder': required for kind 'replay'")
+        depth = ReplayDepthSource(d.folder, d.fps, d.loop)
+    else:
+        raise ConfigError(f"{source}: key 'depth.kind': bad value 'sim': only with --dry-run")
+    o = cfg.odometry
+    if o.kind == "mocap":
+        from quadnav_onboard.sources.mocap import MocapOdometrySource, MocapTransform
+
+        transform = MocapTransform(o.rotation_world_from_mocap, o.translation_world_m)
+        odometry: Any = MocapOdometrySource(o.system_type, o.host, o.rigid_body, transform)
+    elif o.kind == "px4":
+        from quadnav_onboard.sources.px4_odometry import Px4OdometrySource
+
+        odometry = Px4OdometrySource(vehicle)
+    else:
+        raise ConfigError(f"{source}: key 'odometry.kind': bad value 'sim': only with --dry-run")
+    return {"path": path, "depth": depth, "odometry": odometry, "vehicle": vehicle}
