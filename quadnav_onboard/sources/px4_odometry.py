@@ -1,7 +1,8 @@
 """Odometry from PX4's own estimator over MAVSDK telemetry (when no mocap feeds the daemon).
 
 The frame conversion (NED/FRD -> world/FLU) lives in
-:meth:`quadnav_onboard.vehicle.MavsdkVehicle.odometry_samples`; this wrapper only adapts it to the :class:`~quadnav_onboard.sources.base.OdometrySource` protocol.
+:meth:`quadnav_onboard.vehicle.MavsdkVehicle.odometry_samples`; this wrapper only adapts it to the
+:class:`~quadnav_onboard.sources.base.OdometrySource` protocol.
 """
 
 from __future__ import annotations
