@@ -45,7 +45,8 @@ FROM ${BASE_IMAGE} AS runtime
 ENV PATH=/opt/quadnav/venv/bin:$PATH \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
-    OMP_NUM_THREADS=2
+    OMP_NUM_THREADS=2 \
+    NUMBA_CACHE_DIR=/var/lib/quadnav/numba-cache
 # A fixed, unprivileged uid/gid; on the host, pass the device group with --group-add.
 RUN groupadd --system --gid 10001 quadnav \
     && useradd --system --uid 10001 --gid quadnav --home-dir /var/lib/quadnav --shell /usr/sbin/nologin quadnav \
