@@ -93,14 +93,23 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         return _fail(f"model refused: {model_path}: {exc}")
     try:
+        n_prims = (cfg.primitives or policy.primitive_config()).build().n_actions
+    except (ConfigError, ValueError) as exc:
+        return _fail(f"model refused: {model_path}: bad action set: {exc}")
+    if policy.n_actions != n_prims:
+        return _fail(f"model refused: {model_path}: {policy.n_actions} outputs, the action set has {n_prims}")
+    try:
         summary = _fly(args, cfg, policy, trigger, model_path)
     except ConfigError as exc:
         return _fail(f"configuration error:\n{exc}")
-    except Exception as exc:  # a world file, a device that cannot open: say what, no traceback
+    except (ValueError, OSError) as exc:  # a bad world file, a device that cannot open: no traceback
+        return _fail(f"cannot start: {exc}")
+    except Exception as exc:  # a bug: keep the traceback in the log
         from quadnav_onboard.logs import get_logger
 
         get_logger("quadnav.cli").exception("startup_failed")
-        return _fail(f"cannot start: {type(exc).__name__}: {exc}")
+        print(f"quadnav-onboard: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(summary.to_dict(), allow_nan=False, default=str))
     else:
