@@ -40,6 +40,8 @@ __all__ = [
 ]
 
 plt.rcParams.update({"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 100})
+_DEPTH_CMAP = matplotlib.colormaps["turbo"].copy()
+_DEPTH_CMAP.set_bad("#c8c8c8")
 _OBST = {"facecolor": "#9aa4b1", "edgecolor": "#4a5361", "alpha": 0.6, "lw": 1}
 
 
@@ -320,10 +322,10 @@ def fig_depth(rec: FlightRecord, max_frames: int = 8) -> Figure:
         ax.axis("off")
     for ax, (t, img) in zip(axes.flat, frames, strict=False):
         m = np.where(img == 0, np.nan, img.astype(np.float32) / 1000.0)
-        im = ax.imshow(m, cmap="turbo", vmin=0.0, vmax=10.0)
+        im = ax.imshow(m, cmap=_DEPTH_CMAP, vmin=0.0, vmax=10.0)
         ax.set_title(f"t = {t - t0:.1f} s", fontsize=8)
     if im is not None:
-        fig.colorbar(im, ax=axes, label="depth (m; blank = no return)", shrink=0.8)
+        fig.colorbar(im, ax=axes, label="depth (m; grey = no return)", shrink=0.8)
     fig.suptitle("Raw depth (decimated)", fontsize=10)
     return fig
 
