@@ -40,8 +40,7 @@ __all__ = [
 ]
 
 plt.rcParams.update({"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 100})
-_DEPTH_CMAP = matplotlib.colormaps["turbo"].copy()
-_DEPTH_CMAP.set_bad("#c8c8c8")
+_DEPTH_CMAP = matplotlib.colormaps["turbo"].with_extremes(bad="#c8c8c8")
 _OBST = {"facecolor": "#9aa4b1", "edgecolor": "#4a5361", "alpha": 0.6, "lw": 1}
 
 
