@@ -3,14 +3,18 @@ review prints exactly the row the daemon printed at the end of the flight."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
 from quadnav_onboard.daemon.testing import constant_action_checkpoint
-from quadnav_onboard.record import read_record
+from quadnav_onboard.record import RecordError, read_record
 
 SHORT_WORLD = """\
 name: short-free
@@ -85,3 +89,56 @@ def test_dry_run_record_reviews_to_the_row_the_daemon_printed(tmp_path):
     )
     row = json.loads(as_json.stdout)
     assert row["world"] == "short-free" and row["source"] == "summary" and row["reached_goal"] is True
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path):
+    """SIGKILL of a flying dry run: the record is read up to its last chunk and the review prints a row."""
+    model = tmp_path / "straight.pt"
+    constant_action_checkpoint(str(model), action=4)
+    world = tmp_path / "long.yaml"
+    world.write_text(SHORT_WORLD.replace("[5, 0, 2]", "[40, 0, 2]"))
+    rec_dir = tmp_path / "records"
+    daemon = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "quadnav_onboard.cli",
+            "--dry-run",
+            "--world",
+            str(world),
+            "--model",
+            str(model),
+            "--record-dir",
+            str(rec_dir),
+            "--log-format",
+            "json",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    steps_seen = 0
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and steps_seen < 4 and daemon.poll() is None:
+            time.sleep(0.5)
+            for path in rec_dir.glob("*.mcap"):
+                with contextlib.suppress(RecordError):
+                    steps_seen = len(read_record(path, load_depth=False).steps)
+    finally:
+        os.kill(daemon.pid, signal.SIGKILL)
+        daemon.wait(timeout=10)
+    assert steps_seen >= 4 and daemon.returncode == -signal.SIGKILL
+    (path,) = rec_dir.glob("*.mcap")
+    review = subprocess.run(
+        [sys.executable, "-m", "quadnav_onboard.review.cli", str(path), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert review.returncode == 0, review.stderr
+    row = json.loads(review.stdout)
+    assert row["complete"] is False and row["stop_reason"] == "(cut off)" and row["source"] == "steps"
+    assert row["steps"] >= 4 and 2.0 < row["navigation_distance_m"] < 40.0
