@@ -1,0 +1,214 @@
+"""The flight daemon's timing figures (issue 6), with the real MAVSDK against the emulated PX4.
+
+The emulated PX4 runs in its own process (``quadnav-sim serve``), so this process holds only the
+daemon: its CPU time is the daemon's. Depth arrives at 30 fps (a pre-rendered 424x240 uint16 frame,
+as a camera driver hands it over) and mocap at 120 Hz (PX4's latest pose re-stamped, as a mocap
+client would deliver it). Steps are 0.25 s (four times the paper's decision rate) so one run gives
+~80 decisions.
+
+Figures:
+  * decision latency: newest depth frame taken -> first setpoint of the new primitive sent (p99 goal <= 5 ms)
+  * setpoint interval at 20 Hz under that load (p99 goal <= 1.5 x 50 ms = 75 ms)
+  * daemon CPU, % of one core (goal <= 25 %)
+  * stale depth / stale odometry -> hold command issued, after the threshold (goal <= 100 ms)
+
+    .venv/bin/python benchmarks/bench_daemon.py --out bench_daemon.json [--model CKPT.pt]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from quadnav_onboard.config import PrimitiveConfig, parse_config
+from quadnav_onboard.daemon.app import FlightDaemon
+from quadnav_onboard.daemon.config import FlightConfig, MissionConfig, SafetyConfig
+from quadnav_onboard.daemon.testing import constant_action_checkpoint
+from quadnav_onboard.frames import quat_from_yaw
+from quadnav_onboard.logs import configure_logging
+from quadnav_onboard.path import RoughPath
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+from quadnav_onboard.sources.base import DepthFrame, OdometrySample
+from quadnav_onboard.vehicle import MavsdkVehicle
+
+WORLD = """name: bench
+description: a 22 m free path for the daemon benchmark
+path: {waypoints: [[0, 0, 1.5], [22, 0, 1.5]], speed_m_s: 1.0}
+bounds: {floor_z: 0.0, ceiling_z: 6.0}
+obstacles: []
+"""
+
+
+class CameraFeed:
+    """30 fps of one pre-rendered frame; ``cut`` stops the feed (cable pulled)."""
+
+    def __init__(self, fps: float = 30.0) -> None:
+        self.fps = fps
+        rng = np.random.default_rng(0)
+        self.frame = rng.integers(500, 9000, size=(240, 424), dtype=np.uint16)
+        self.cut = False
+
+    async def __aenter__(self) -> CameraFeed:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def frames(self) -> AsyncIterator[DepthFrame]:
+        t_next, seq = time.monotonic(), 0
+        while True:
+            t_next += 1.0 / self.fps
+            await asyncio.sleep(max(0.0, t_next - time.monotonic()))
+            if not self.cut:
+                seq += 1
+                yield DepthFrame(self.frame.copy(), time.monotonic(), seq)
+
+
+class MocapFeed:
+    """120 Hz samples of the vehicle's latest reported pose; ``cut`` stops the feed."""
+
+    def __init__(self, vehicle: MavsdkVehicle, rate_hz: float = 120.0) -> None:
+        self.vehicle, self.rate_hz, self.cut = vehicle, rate_hz, False
+
+    async def __aenter__(self) -> MocapFeed:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def samples(self) -> AsyncIterator[OdometrySample]:
+        t_next = time.monotonic()
+        while True:
+            t_next += 1.0 / self.rate_hz
+            await asyncio.sleep(max(0.0, t_next - time.monotonic()))
+            pos = self.vehicle.state.pos_world_m
+            if not self.cut and np.all(np.isfinite(pos)):
+                yield OdometrySample(pos.copy(), quat_from_yaw(0.0), time.monotonic())
+
+
+def config(max_steps: int) -> FlightConfig:
+    return FlightConfig(
+        mission=MissionConfig(takeoff_speed_m_s=2.0, max_steps=max_steps, land_at_goal=False),
+        primitives=parse_config(PrimitiveConfig, {"scale_m": 0.25, "duration_s": 0.25}),
+        safety=SafetyConfig(land_on_abort=False, hold_before_land_s=0.0),
+    )
+
+
+async def fly(port: int, policy: Policy, max_steps: int, cut: str | None) -> tuple[Any, float]:
+    vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=15.0)
+    depth, mocap = CameraFeed(), MocapFeed(vehicle)
+    path = RoughPath(np.array([[0.0, 0.0, 1.5], [22.0, 0.0, 1.5]]), 1.0)
+    daemon = FlightDaemon(
+        config(max_steps), path=path, policy=policy, depth=depth, odometry=mocap, vehicle=vehicle
+    )
+
+    async def cutter() -> None:
+        while not (daemon.in_mission and daemon.steps >= 4):
+            await asyncio.sleep(0.01)
+        (depth if cut == "depth" else mocap).cut = True
+
+    task = asyncio.ensure_future(cutter()) if cut else None
+    cpu0, wall0 = time.process_time(), time.monotonic()
+    summary = await daemon.run()
+    cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+    if task:
+        task.cancel()
+    return summary, cpu
+
+
+def serve(world: Path, port: int) -> subprocess.Popen[bytes]:
+    cmd = [
+        sys.executable,
+        "-m",
+        "sim_harness.cli",
+        "serve",
+        "--world",
+        str(world),
+        "--api-port",
+        str(port),
+        "--gcs-port",
+        "0",
+        "--heartbeat-hz",
+        "10",
+    ]
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--model", type=Path, default=None, help="checkpoint (default: bundled, else a test model)"
+    )
+    ap.add_argument("--stale-runs", type=int, default=3, help="runs per stale-input reaction figure")
+    ap.add_argument("--out", type=Path, default=Path("bench_daemon.json"))
+    args = ap.parse_args()
+    configure_logging(json=True, level="error")
+    import torch
+
+    torch.set_num_threads(1)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_daemon_"))
+    model = args.model or (DEFAULT_MODEL_PATH if DEFAULT_MODEL_PATH.exists() else None)
+    if model is None:
+        model = tmp / "forward.pt"
+        constant_action_checkpoint(str(model), 4)
+    policy = Policy.from_path(model)
+    world = tmp / "world.yaml"
+    world.write_text(WORLD)
+    from sim_harness.px4 import free_udp_port
+
+    results: dict[str, Any] = {"machine": platform.platform(), "cpus": os.cpu_count(), "model": str(model)}
+    stale: dict[str, list[float]] = {"depth": [], "odometry": []}
+    runs = [("main", None)] + [(k, k) for k in ("depth", "odometry") for _ in range(args.stale_runs)]
+    for name, cut in runs:
+        port = free_udp_port()
+        emu = serve(world, port)
+        try:
+            summary, cpu = asyncio.run(fly(port, policy, 80 if cut is None else 30, cut))
+        finally:
+            emu.terminate()
+            emu.wait(10)
+        if cut is None:
+            results["main_run"] = {**summary.to_dict(), "daemon_cpu_fraction_of_one_core": round(cpu, 4)}
+        elif summary.hold_reaction_ms is not None:
+            stale[cut].append(summary.hold_reaction_ms)
+        print(f"{name}: stop {summary.stop_reason}, steps {summary.steps}, cpu {cpu:.1%}", flush=True)
+    main_run = results["main_run"]
+    results["stale_to_hold_ms"] = {k: v for k, v in stale.items()}
+    figures = {
+        "decision_latency_p99_ms": main_run["decision_latency_ms"]["p99_ms"],
+        "setpoint_interval_p99_ms": main_run["setpoint_interval_ms"]["p99_ms"],
+        "daemon_cpu_percent_of_one_core": round(100 * main_run["daemon_cpu_fraction_of_one_core"], 1),
+        "stale_depth_to_hold_max_ms": max(stale["depth"], default=math.nan),
+        "stale_odometry_to_hold_max_ms": max(stale["odometry"], default=math.nan),
+    }
+    goals = {
+        "decision_latency_p99_ms": 5.0,
+        "setpoint_interval_p99_ms": 75.0,
+        "daemon_cpu_percent_of_one_core": 25.0,
+        "stale_depth_to_hold_max_ms": 100.0,
+        "stale_odometry_to_hold_max_ms": 100.0,
+    }
+    results["figures"], results["goals"] = figures, goals
+    print(f"\n{'figure':36s} {'measured':>10s} {'goal':>8s}")
+    for k, v in figures.items():
+        ok = "ok" if v is not None and v <= goals[k] else "MISSED"
+        print(f"{k:36s} {v!s:>10s} {goals[k]:8.1f}  {ok}")
+    args.out.write_text(json.dumps(results, indent=2, default=str))
+    print(f"\nwrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
