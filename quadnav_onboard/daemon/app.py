@@ -21,26 +21,23 @@ from typing import Any
 import numpy as np
 
 from quadnav_onboard.daemon.config import FlightConfig
-from quadnav_onboard.daemon.loops import Loops
+from quadnav_onboard.daemon.ladder import StopLadder
 from quadnav_onboard.daemon.mission import ActivePrimitive, RampTrajectory, goal_reached, step_inputs
 from quadnav_onboard.daemon.summary import FlightSummary, SafeRecorder
 from quadnav_onboard.daemon.supervisor import (
     PreflightCheck,
     PreflightError,
-    Response,
     StopReason,
     check_depth_frame,
     check_odometry,
     check_start_inside,
     check_vehicle_ready,
-    response_for,
 )
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import preprocess_depth_mm
-from quadnav_onboard.reward import reward
 from quadnav_onboard.sources.base import DepthSource, OdometrySource
 from quadnav_onboard.vehicle import VehicleError, VehicleLink
 
@@ -49,7 +46,7 @@ __all__ = ["FlightDaemon"]
 log = get_logger("quadnav.daemon")
 
 
-class FlightDaemon(Loops):
+class FlightDaemon(StopLadder):
     """Fly one mission. Build with sources, a vehicle link and a policy; ``await run()``."""
 
     def __init__(
@@ -396,127 +393,3 @@ class FlightDaemon(Loops):
             )
             k += 1
             self.pending_step = pending
-
-    def _finish_step(
-        self, p: dict[str, Any], pos: np.ndarray, d_now_m: float, collided: bool = False
-    ) -> None:
-        """Reward of one executed step, exactly as in training, and its record."""
-        dev = float(self.path.deviation_m(pos))
-        deviated = dev > self.cfg.reward.max_deviation_m
-        r = float(reward(p["inputs"].distance_m, d_now_m, deviated, collided, self.cfg.reward))
-        self.total_reward += r
-        self.steps = p["step"] + 1
-        self.pending_step = None
-        self.recorder.step(
-            p["t"],
-            step=p["step"],
-            action=p["action"],
-            q_values=p["q"],
-            rel_pos_body_m=p["inputs"].rel_pos_body_m,
-            moving_setpoint_world_m=p["inputs"].setpoint_world_m,
-            pos_world_m=p["pos"],
-            reward=r,
-            reward_terms={
-                "d_prev_m": p["inputs"].distance_m,
-                "d_now_m": d_now_m,
-                "deviated": deviated,
-                "collided": collided,
-            },
-            progress_m=float(self.path.progress_m(pos)),
-            deviation_m=dev,
-            latency_ms=self.decision_latency_last_s * 1e3,
-        )
-
-    # --- stop ----------------------------------------------------------------------------------
-
-    async def _respond(self) -> None:
-        """The response ladder: stop streaming; hold; land (if configured); disarm (if configured)."""
-        if self.stop_reason is None:
-            self.request_stop(StopReason.INTERNAL_ERROR, "lifecycle ended without a stop reason")
-        reason = self.stop_reason
-        assert reason is not None
-        self.phase = "stop"
-        self.t_mission_end_mono_s = time.monotonic()
-        self.streaming = False
-        self.supervising = False
-        self.trajectory = None
-        self._close_partial_step(reason)
-        if not self.flying:
-            return
-        if response_for(reason) is Response.RELEASE:
-            log.warning("stop_release", reason=reason.value, detail="not commanding: pilot/PX4 in charge")
-            self.recorder.event(
-                time.monotonic(), "release", "stopped commanding the vehicle", reason=reason.value
-            )
-            return
-        await self.command_hold()
-        land = (
-            self.cfg.mission.land_at_goal
-            if reason is StopReason.GOAL_REACHED
-            else self.cfg.safety.land_on_abort
-        )
-        if not land:
-            return
-        await asyncio.sleep(self.cfg.safety.hold_before_land_s)
-        if self.vehicle.state.mode not in ("HOLD", "OFFBOARD") and self.vehicle.state.armed:
-            log.warning("land_skipped", mode=self.vehicle.state.mode, detail="pilot took over during hold")
-            return
-        await self._ladder_step("land", self.vehicle.land)
-        await self._wait_landed()
-        if (
-            self.cfg.safety.disarm_on_abort
-            and reason is not StopReason.GOAL_REACHED
-            and self.vehicle.state.armed
-        ):
-            await self._ladder_step("disarm", self.vehicle.disarm)
-
-    async def _ladder_step(self, name: str, fn: Callable[[], Any]) -> None:
-        t = time.monotonic()
-        log.warning("ladder", step=name, reason=self.stop_reason.value if self.stop_reason else None)
-        self.recorder.event(t, "ladder", name)
-        try:
-            await fn()
-        except VehicleError as exc:
-            log.error("ladder_failed", step=name, error=str(exc))
-            self.recorder.event(time.monotonic(), "ladder_failed", f"{name}: {exc}")
-
-    async def _wait_landed(self) -> None:
-        deadline = time.monotonic() + self.cfg.safety.land_timeout_s
-        while time.monotonic() < deadline:
-            st = self.vehicle.state
-            if not st.armed or st.landed:
-                log.info("landed", armed=st.armed)
-                self.recorder.event(time.monotonic(), "landed", "on the ground", armed=st.armed)
-                return
-            await asyncio.sleep(0.05)
-        log.error("land_timeout", timeout_s=self.cfg.safety.land_timeout_s)
-
-    def _close_partial_step(self, reason: StopReason) -> None:
-        p = self.pending_step
-        odom = self.latest_odom.value
-        if p is None or odom is None:
-            return
-        pos = np.asarray(odom.pos_world_m, dtype=np.float64)
-        d_now = step_inputs(self.path, p["step"] + 1, self.prims.duration_s, pos).distance_m
-        self._finish_step(p, pos, d_now, collided=reason is StopReason.CRASH)
-
-    def _finish(self) -> FlightSummary:
-        reason = self.stop_reason or StopReason.INTERNAL_ERROR
-        odom = self.latest_odom.value
-        pos = np.asarray(odom.pos_world_m) if odom is not None else np.full(3, np.nan)
-        started = math.isfinite(self.t_mission_start_mono_s)
-        summary = FlightSummary.build(
-            reason=reason,
-            detail=self.stop_detail,
-            steps=self.steps,
-            navigation_distance_m=float(self.path.progress_m(pos))
-            if started and np.all(np.isfinite(pos))
-            else 0.0,
-            flight_time_s=(self.t_mission_end_mono_s - self.t_mission_start_mono_s) if started else 0.0,
-            crashed=reason is StopReason.CRASH,
-            total_reward=self.total_reward,
-            stats=self.stats,
-            model_sha256=self.policy.checkpoint.sha256,
-        )
-        self.recorder.close(reason.value, summary.to_dict())
-        return summary

@@ -1,0 +1,23 @@
+"""The flight daemon ``quadnav-onboard``: sensors -> state -> policy -> primitive -> setpoints -> vehicle,
+with a safety supervisor that can cut in at every arrow. See docs/daemon.md.
+
+Modules: :mod:`config` (the frozen flight config), :mod:`supervisor` (StopReason, ExitCode, checks),
+:mod:`mission` (pure step geometry shared with training), :mod:`loops` (the concurrent tasks),
+:mod:`ladder` (stop response and summary), :mod:`app` (the lifecycle), :mod:`hardware` and
+:mod:`dryrun` (wiring), :mod:`testing` (fakes for tests).
+"""
+
+from quadnav_onboard.daemon.app import FlightDaemon
+from quadnav_onboard.daemon.config import FlightConfig, default_sim_config, load_flight_config
+from quadnav_onboard.daemon.summary import FlightSummary
+from quadnav_onboard.daemon.supervisor import ExitCode, StopReason
+
+__all__ = [
+    "ExitCode",
+    "FlightConfig",
+    "FlightDaemon",
+    "FlightSummary",
+    "StopReason",
+    "default_sim_config",
+    "load_flight_config",
+]
