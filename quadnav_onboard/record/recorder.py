@@ -31,7 +31,7 @@ import time
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
@@ -41,100 +41,15 @@ from numpy.typing import ArrayLike
 from quadnav_onboard import __version__
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.record import schemas as S
+from quadnav_onboard.record.protocol import NullRecorder, Recorder
 
-__all__ = ["FlightRecorder", "NullRecorder", "Recorder", "RecorderError"]
+__all__ = ["FlightRecorder", "NullRecorder", "Recorder", "RecorderError"]  # the last three re-exported
 
 _log = get_logger("quadnav.record")
 
 
 class RecorderError(OSError):
     """The record file cannot be created (the message names the path and the reason)."""
-
-
-class Recorder(Protocol):
-    """What the daemon and the sim call; :class:`FlightRecorder` and :class:`NullRecorder` fit."""
-
-    def depth(self, t_mono_s: float, depth_mm: np.ndarray) -> None: ...
-    def network_input(self, t_mono_s: float, step: int, input_32: np.ndarray) -> None: ...
-    def odometry(
-        self,
-        t_mono_s: float,
-        pos_world_m: ArrayLike,
-        quat_world_body: ArrayLike,
-        vel_world_m_s: ArrayLike | None = None,
-    ) -> None: ...
-    def setpoint(
-        self, t_mono_s: float, pos_world_m: ArrayLike, vel_world_m_s: ArrayLike, yaw_rad: float
-    ) -> None: ...
-    def step(self, t_mono_s: float, **decision: Any) -> None: ...
-    def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None: ...
-    def event(self, t_mono_s: float, kind: str, message: str, **fields: Any) -> None: ...
-    def rough_path(self, t_mono_s: float, waypoints_m: ArrayLike) -> None: ...
-    def add_metadata(self, name: str, data: Mapping[str, str]) -> None: ...
-    def close(
-        self, stop_reason: str, summary: Mapping[str, Any] | None = None, *, t_mono_s: float | None = None
-    ) -> None: ...
-
-
-class NullRecorder:
-    """A recorder that records nothing (recording switched off); same methods, no cost."""
-
-    dropped = 0
-    drop_counts: Mapping[str, int] = {}
-    path = None
-
-    def __enter__(self) -> NullRecorder:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        return None
-
-    def depth(self, t_mono_s: float, depth_mm: np.ndarray) -> None:
-        return None
-
-    def network_input(self, t_mono_s: float, step: int, input_32: np.ndarray) -> None:
-        return None
-
-    def odometry(
-        self, t_mono_s: float, pos_world_m: Any, quat_world_body: Any, vel_world_m_s: Any = None
-    ) -> None:
-        return None
-
-    def setpoint(self, t_mono_s: float, pos_world_m: Any, vel_world_m_s: Any, yaw_rad: float) -> None:
-        return None
-
-    def rough_path(self, t_mono_s: float, waypoints_m: Any) -> None:
-        return None
-
-    def step(self, t_mono_s: float, **decision: Any) -> None:
-        return None
-
-    def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None:
-        return None
-
-    def event(self, t_mono_s: float, kind: str, message: str, **fields: Any) -> None:
-        return None
-
-    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        return None
-
-    def close(self, stop_reason: str, summary: Mapping[str, Any] | None = None, **_: Any) -> None:
-        return None
-
-
-_STEP_KEYS = (
-    "step",
-    "action",
-    "q_values",
-    "rel_pos_body_m",
-    "moving_setpoint_world_m",
-    "pos_world_m",
-    "reward",
-    "reward_terms",
-    "progress_m",
-    "deviation_m",
-    "latency_ms",
-)
 
 
 def _valid_t(t_mono_s: float) -> bool:

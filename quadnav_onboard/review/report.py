@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt
 from matplotlib.figure import Figure
 
 from quadnav_onboard.record.reader import FlightRecord
-from quadnav_onboard.review import plots
+from quadnav_onboard.review import plots, plots_decisions
 from quadnav_onboard.review.table import FlightRow, rates
 
 __all__ = ["render_report", "write_report"]
@@ -130,19 +130,19 @@ def _flight_section(rec: FlightRecord, row: FlightRow, warnings: Sequence[str]) 
     out.append(f"<h3>Setpoint tracking (lag ≈ {lag:.2f} s)</h3>")
     out.append(_img(fig, "setpoint vs flown position over time"))
     out.append("<h3>What it chose</h3>")
-    out.append(_img(plots.fig_decisions(rec), "Q-values and actions per decision"))
+    out.append(_img(plots_decisions.fig_decisions(rec), "Q-values and actions per decision"))
     out.append("<h3>What it saw</h3>")
     if rec.network_inputs:
-        out.append(_img(plots.fig_inputs(rec), "network depth input at each decision"))
+        out.append(_img(plots_decisions.fig_inputs(rec), "network depth input at each decision"))
     if rec.depth:
-        out.append(_img(plots.fig_depth(rec), "raw depth frames"))
+        out.append(_img(plots_decisions.fig_depth(rec), "raw depth frames"))
     if not rec.network_inputs and not rec.depth:
         out.append("<p class=muted>No images recorded.</p>")
     out.append("<h3>Modes, failsafes and events</h3>")
-    out.append(_img(plots.fig_modes(rec), "mode and event timeline"))
+    out.append(_img(plots_decisions.fig_modes(rec), "mode and event timeline"))
     out.append(_events_table(rec))
     out.append("<h3>Latency</h3>")
-    out.append(_img(plots.fig_latency(rec), "latency histograms"))
+    out.append(_img(plots_decisions.fig_latency(rec), "latency histograms"))
     if stop.get("summary"):
         out.append(f"<details><summary>daemon summary</summary><pre>{_e(stop['summary'])}</pre></details>")
     out.append(_metadata(rec))
