@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
 from mcap.records import Channel, Footer, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from numpy.typing import NDArray
@@ -100,6 +101,13 @@ class FlightRecord:
         return np.array([s["t_mono_s"] for s in self.steps], dtype=np.float64)
 
 
+def _opname(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name
+    except ValueError:
+        return f"unknown (opcode {opcode:#x})"
+
+
 def _records(path: Path, problems: list[str]) -> Iterator[McapRecord]:
     """Yield the file's MCAP records (chunks opened, CRCs checked); stop at the first bad one."""
     with open(path, "rb") as f:
@@ -117,7 +125,7 @@ def _records(path: Path, problems: list[str]) -> Iterator[McapRecord]:
                 return
             opcode, length = struct.unpack("<BQ", head)
             if length > min(_MAX_RECORD_BYTES, size - start - 9):
-                problems.append(f"cut off inside a record (opcode {opcode:#x}) at byte {start}")
+                problems.append(f"cut off inside a {_opname(opcode)} record at byte {start}")
                 return
             body = f.read(length)
             reader = StreamReader(io.BytesIO(head + body), skip_magic=True, validate_crcs=True)
@@ -129,10 +137,10 @@ def _records(path: Path, problems: list[str]) -> Iterator[McapRecord]:
                 except EndOfFile:
                     pass
             except (McapError, ValueError, struct.error, UnicodeDecodeError) as exc:
-                problems.append(f"corrupt record (opcode {opcode:#x}) at byte {start}: {exc}")
+                problems.append(f"corrupt {_opname(opcode)} record at byte {start}: {exc}")
                 return
             except Exception as exc:  # zstd errors and the like: the chunk is damaged
-                problems.append(f"corrupt record (opcode {opcode:#x}) at byte {start}: {type(exc).__name__}")
+                problems.append(f"corrupt {_opname(opcode)} record at byte {start}: {type(exc).__name__}")
                 return
             if any(isinstance(r, Footer) for r in out):
                 if f.read(8) != _MAGIC:
