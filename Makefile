@@ -5,7 +5,11 @@ PIP := $(VENV)/bin/pip
 TORCH_PIN := torch==2.13.0
 PYTEST_ARGS ?= -n 3
 
-.PHONY: dry-run test install install-dev lint
+.PHONY: dry-run test install install-dev lint system-deps
+
+# The tests also drive Debian's headless Chromium (report screenshots) and systemd-analyze (unit
+# checks). As root on Debian/Ubuntu they are installed when missing; otherwise we say what to install.
+SYSTEM_DEPS := chromium:chromium systemd-analyze:systemd
 
 $(VENV)/bin/python:
 	python3 -m venv $(VENV)
@@ -23,9 +27,18 @@ install-dev: $(VENV)/bin/python
 dry-run: install
 	$(VENV)/bin/quadnav-onboard --dry-run
 
+system-deps:
+	@missing=""; for pair in $(SYSTEM_DEPS); do cmd=$${pair%%:*}; pkg=$${pair##*:}; \
+	  command -v $$cmd >/dev/null || missing="$$missing $$pkg"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing Debian packages:$$missing"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "missing system packages:$$missing (sudo apt-get install$$missing)"; exit 1; fi; fi
+
 lint: install-dev
 	$(VENV)/bin/ruff check .
 
 ## Quick start 2: install with the dev extra, then lint and run the whole test suite.
-test: lint
+test: lint system-deps
 	$(VENV)/bin/pytest $(PYTEST_ARGS)
