@@ -214,3 +214,30 @@ async def test_a_failing_recorder_never_breaks_the_flight(forward_policy: Policy
     rig = Rig(forward_policy, recorder=Broken())
     s = await asyncio.wait_for(rig.daemon.run(), 15)
     assert s.stop_reason == "goal_reached"
+
+
+async def test_systemd_hears_ready_after_preflight_and_watchdog_pings(
+    forward_policy: Policy, tmp_path: Path
+) -> None:
+    import socket
+
+    from quadnav_onboard.sdnotify import SdNotifier
+
+    sock_path = str(tmp_path / "notify.sock")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(sock_path)
+    listener.setblocking(False)
+    got: list[str] = []
+    loop = asyncio.get_running_loop()
+    loop.add_reader(listener.fileno(), lambda: got.append(listener.recv(4096).decode()))  # like systemd
+    rig = Rig(forward_policy, notifier=SdNotifier(sock_path, watchdog_timeout_s=0.2))
+    try:
+        s = await asyncio.wait_for(rig.daemon.run(), 15)
+    finally:
+        loop.remove_reader(listener.fileno())
+        listener.close()
+    assert s.stop_reason == "goal_reached"
+    ready = [i for i, m in enumerate(got) if "READY=1" in m]
+    pings = [i for i, m in enumerate(got) if m == "WATCHDOG=1"]
+    assert len(ready) == 1 and len(pings) >= 5  # a ~2 s flight at one ping per 0.1 s
+    assert any(i > ready[0] for i in pings)

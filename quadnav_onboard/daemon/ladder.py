@@ -79,6 +79,7 @@ class StopLadder(Loops):
         reason = self.stop_reason
         assert reason is not None
         self.phase = "stop"
+        self.notifier.status(f"stopping: {reason.value}")
         self.t_mission_end_mono_s = time.monotonic()
         self.streaming = False
         self.supervising = False

@@ -233,11 +233,15 @@ class Loops:
     async def supervise(self) -> None:
         """In-flight checks at ``safety.check_rate_hz``; also feeds the systemd watchdog."""
         period = 1.0 / self.cfg.safety.check_rate_hz
-        t_vehicle_rec = -math.inf
+        interval = getattr(self.notifier, "watchdog_interval_s", lambda: None)()
+        wd_period_s = min(1.0, interval) if interval else 1.0
+        t_vehicle_rec = t_watchdog = -math.inf
         while True:
             await asyncio.sleep(period)
             now = time.monotonic()
-            self.notifier.watchdog()
+            if now - t_watchdog >= wd_period_s:  # from this loop: a hung loop stops the pings
+                t_watchdog = now
+                self.notifier.watchdog()
             st = self.vehicle.state
             if now - t_vehicle_rec >= 0.2:
                 t_vehicle_rec = now

@@ -151,6 +151,9 @@ class NullNotifier:
     def stopping(self) -> bool:
         return False
 
+    def watchdog_interval_s(self) -> float | None:
+        return None
+
     def close(self) -> None:
         with contextlib.suppress(Exception):
             pass
