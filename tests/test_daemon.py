@@ -241,3 +241,26 @@ async def test_systemd_hears_ready_after_preflight_and_watchdog_pings(
     pings = [i for i, m in enumerate(got) if m == "WATCHDOG=1"]
     assert len(ready) == 1 and len(pings) >= 5  # a ~2 s flight at one ping per 0.1 s
     assert any(i > ready[0] for i in pings)
+
+
+async def test_a_pilots_switch_to_offboard_is_the_go_and_is_not_repeated(forward_policy: Policy) -> None:
+    from quadnav_onboard.trigger import MissionTriggerConfig
+
+    trigger = parse_config(MissionTriggerConfig, {"mode": "offboard_switch"})
+    rig = Rig(forward_policy, trigger=trigger)
+    streamed_before_switch: list[bool] = []
+
+    async def pilot() -> None:
+        await rig.when(lambda: rig.daemon.phase == "wait_for_go")
+        await asyncio.sleep(0.3)
+        assert rig.commands() == []  # nothing armed while waiting
+        streamed_before_switch.append(len(rig.vehicle.setpoints) > 0)
+        rig.vehicle.state.armed = True  # the pilot arms ...
+        rig.vehicle.set_mode("OFFBOARD")  # ... and flips the switch
+
+    task = asyncio.ensure_future(pilot())
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    await task
+    assert streamed_before_switch == [True]  # PX4 needs a live stream to accept OFFBOARD
+    assert s.stop_reason == "goal_reached"
+    assert "arm" not in rig.commands() and "offboard_start" not in rig.commands()

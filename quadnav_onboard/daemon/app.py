@@ -22,7 +22,13 @@ import numpy as np
 
 from quadnav_onboard.daemon.config import FlightConfig
 from quadnav_onboard.daemon.ladder import StopLadder
-from quadnav_onboard.daemon.mission import ActivePrimitive, RampTrajectory, goal_reached, step_inputs
+from quadnav_onboard.daemon.mission import (
+    ActivePrimitive,
+    CurrentPose,
+    RampTrajectory,
+    goal_reached,
+    step_inputs,
+)
 from quadnav_onboard.daemon.summary import FlightSummary, SafeRecorder
 from quadnav_onboard.daemon.supervisor import (
     PreflightCheck,
@@ -256,32 +262,41 @@ class FlightDaemon(StopLadder):
         return PreflightCheck("model", True, f"{pol.n_actions} actions, sha256 {sha}")
 
     async def _wait_for_go(self) -> None:
+        """Wait for the operator's go. For a pilot's switch to OFFBOARD, stream the vehicle's current
+        position meanwhile (PX4 accepts OFFBOARD only with a live setpoint stream, and the vehicle
+        then holds where it is)."""
         self.phase = "wait_for_go"
-        if self.trigger is None:
+        if self.trigger is None or getattr(self.trigger, "mode", "auto") == "auto":
             return
         from quadnav_onboard.trigger import wait_for_go
 
+        self.trajectory = CurrentPose(lambda: self.latest_odom.value)
+        self.streaming = True
         go = await wait_for_go(self.trigger, mode_stream=self.mode_stream(), heartbeat=self.notifier.watchdog)
         log.info("go", mode=go.mode, detail=getattr(go, "detail", ""))
 
     async def _takeoff(self) -> None:
-        """Stream a setpoint at the ground position, arm, switch to offboard, ramp to the path start."""
+        """Stream a setpoint at the current position, arm and switch to offboard (unless the pilot
+        already did), then ramp up and over to the path start."""
         self.phase = "takeoff"
         cfg = self.cfg.mission
         odom = self.latest_odom.value
         assert odom is not None
         yaw0 = float(self.path.yaw_at(0.0))
         ground = np.asarray(odom.pos_world_m, dtype=np.float64)
-        self.trajectory = RampTrajectory(
-            ground[None].repeat(2, 0), cfg.takeoff_speed_m_s, yaw0, time.monotonic()
-        )
-        self.streaming = True
-        await asyncio.sleep(3.0 / self.cfg.vehicle.setpoint_rate_hz)
+        if not self.streaming:
+            self.trajectory = RampTrajectory(
+                ground[None].repeat(2, 0), cfg.takeoff_speed_m_s, yaw0, time.monotonic()
+            )
+            self.streaming = True
+            await asyncio.sleep(3.0 / self.cfg.vehicle.setpoint_rate_hz)
         self.flying = True
-        await self.vehicle.arm()
-        await self._await_state(lambda st: st.armed, "armed")
-        await self.vehicle.start_offboard()
-        await self._await_state(lambda st: st.mode == "OFFBOARD", "in OFFBOARD")
+        if not self.vehicle.state.armed:
+            await self.vehicle.arm()
+            await self._await_state(lambda st: st.armed, "armed")
+        if self.vehicle.state.mode != "OFFBOARD":
+            await self.vehicle.start_offboard()
+            await self._await_state(lambda st: st.mode == "OFFBOARD", "in OFFBOARD")
         self.supervising = True
         ramp = RampTrajectory.takeoff(
             ground, self.path.start_m, cfg.takeoff_speed_m_s, yaw0, time.monotonic()
@@ -292,7 +307,7 @@ class FlightDaemon(StopLadder):
         deadline = time.monotonic() + cfg.takeoff_timeout_s
         while True:
             pos = self.latest_odom.value.pos_world_m  # type: ignore[union-attr]
-            done = time.monotonic() >= ramp.t_start_mono_s + self._ramp_duration(ramp)
+            done = time.monotonic() >= ramp.t_start_mono_s + ramp.duration_s
             if done and float(np.linalg.norm(pos - self.path.start_m)) <= cfg.start_tolerance_m:
                 return
             if time.monotonic() > deadline:
@@ -311,11 +326,6 @@ class FlightDaemon(StopLadder):
         except TimeoutError:
             limit = self.cfg.vehicle.command_timeout_s
             raise VehicleError(f"telemetry did not confirm the vehicle {what} within {limit:g} s") from None
-
-    @staticmethod
-    def _ramp_duration(ramp: RampTrajectory) -> float:
-        lengths = np.linalg.norm(np.diff(ramp.points_world_m, axis=0), axis=1)
-        return float(lengths.sum()) / ramp.speed_m_s
 
     # --- mission -------------------------------------------------------------------------------
 

@@ -11,17 +11,20 @@ Positions world frame (x forward, y left, z up), metres; velocities m/s; times s
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quadnav_onboard.frames import body_to_world, world_to_body
+from quadnav_onboard.frames import body_to_world, quat_to_yaw, world_to_body
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.primitives import PrimitiveSet
 
 __all__ = [
     "ActivePrimitive",
+    "CurrentPose",
     "RampTrajectory",
     "StepInputs",
     "goal_reached",
@@ -120,6 +123,11 @@ class RampTrajectory:
     def end_world_m(self) -> NDArray[np.float64]:
         return self.points_world_m[-1]
 
+    @property
+    def duration_s(self) -> float:
+        """Time (s) to travel the whole ramp."""
+        return float(np.linalg.norm(np.diff(self.points_world_m, axis=0), axis=1).sum()) / self.speed_m_s
+
     def sample(self, t_mono_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """(position world m, velocity world m/s, yaw rad) at ``t_mono_s``; holds the end point after."""
         travel = max(t_mono_s - self.t_start_mono_s, 0.0) * self.speed_m_s
@@ -134,3 +142,19 @@ class RampTrajectory:
                 return a + direction * travel, direction * self.speed_m_s, self.yaw_rad
             travel -= length
         return pts[-1].copy(), np.zeros(3), self.yaw_rad
+
+
+class CurrentPose:
+    """Wherever the vehicle is now, at zero velocity and its own yaw: streamed while waiting for a
+    pilot's switch to OFFBOARD, so the switch holds the vehicle in place.
+
+    ``odometry_fn()`` returns the newest :class:`~quadnav_onboard.sources.base.OdometrySample`.
+    """
+
+    def __init__(self, odometry_fn: Callable[[], Any]) -> None:
+        self._odometry_fn = odometry_fn
+
+    def sample(self, t_mono_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        odom = self._odometry_fn()
+        yaw = float(quat_to_yaw(odom.quat_world_body))
+        return np.asarray(odom.pos_world_m, dtype=np.float64).copy(), np.zeros(3), yaw
