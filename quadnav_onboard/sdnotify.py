@@ -76,7 +76,8 @@ class SdNotifier:
         try:
             if self._sock is None:
                 self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-            self._sock.sendto("\n".join(fields).encode("utf-8"), addr)
+            # Non-blocking: a listener that stops reading must never stall the flight loop.
+            self._sock.sendto("\n".join(fields).encode("utf-8"), socket.MSG_DONTWAIT, addr)
         except OSError as exc:
             if not self._warned:
                 _log.warning("sd_notify failed", socket=self._path, error=str(exc))
