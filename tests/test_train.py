@@ -114,3 +114,20 @@ def test_training_is_seeded(tmp_path) -> None:
     wa = load_checkpoint(a.model_path).model.state_dict()
     wb = load_checkpoint(b.model_path).model.state_dict()
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+def test_train_command_reports_bad_input_without_a_traceback_or_a_run_dir(tmp_path, capsys) -> None:
+    from sim_harness.cli import main
+
+    assert main(["train", "--episodes", "0", "--out-dir", str(tmp_path), "--no-progress"]) == 2
+    assert "episodes" in capsys.readouterr().err
+    missing = tmp_path / "nope.yaml"
+    assert (
+        main(["train", "--world-files", str(missing), "--out-dir", str(tmp_path / "runs"), "--no-progress"])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "nope.yaml" in err and "Traceback" not in err
+    assert not (tmp_path / "runs").exists()
+    assert main(["train", "--resume", str(tmp_path), "--no-progress"]) == 2
+    assert "not a run directory" in capsys.readouterr().err

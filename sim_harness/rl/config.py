@@ -110,6 +110,15 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
     bad = [w for w in cfg.train_worlds if w not in range(1, 11)]
     if bad:
         raise ConfigError(f"{source}: key 'train_worlds': bad value {bad!r}: paper worlds are 1..10")
+    if cfg.device != "cpu":
+        import torch
+
+        try:
+            ok = torch.device(cfg.device).type == "cuda" and torch.cuda.is_available()
+        except RuntimeError:
+            ok = False
+        if not ok:
+            raise ConfigError(f"{source}: key 'device': bad value {cfg.device!r}: no such torch device here")
     return cfg
 
 

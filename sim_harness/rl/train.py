@@ -104,15 +104,16 @@ def train(
         cfg = load_train_config(read_config_file(run_dir / "config.json"), str(run_dir / "config.json"))
     else:
         cfg = config or TrainConfig()
-        run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
-        (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
     torch.set_num_threads(cfg.torch_threads)
     if cfg.sim_threads > 0:
         numba.set_num_threads(min(cfg.sim_threads, numba.config.NUMBA_NUM_THREADS))
     torch.manual_seed(cfg.seed)
     env_cfg = env_config_for(cfg)
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
-    worlds = [load_world(p) for p in world_paths]
+    worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
+    if resume is None:
+        run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
+        (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
     env = VecQuadNavEnv(worlds, cfg.n_envs, seed=cfg.seed, config=env_cfg)
     agent = DQNAgent(
         network_config_for(cfg),
