@@ -42,4 +42,4 @@ def _stderr_logger(*_args: object) -> structlog.PrintLogger:
 
 
 def get_logger(name: str) -> structlog.typing.FilteringBoundLogger:
-    return structlog.get_logger(name)
+    return structlog.get_logger(logger_name=name)
