@@ -18,6 +18,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sim_harness.jit import CAN_CACHE
 from sim_harness.world import World
 
 __all__ = ["DEFAULT_TOL_M", "clearance_m", "collides", "sweep_collides"]
@@ -28,22 +29,8 @@ DEFAULT_TOL_M = 0.01
 PARALLEL_MIN_POINTS = 20_000
 """Batches of at least this many points (trail points) use numba's thread pool."""
 
-def _probe() -> None:  # pragma: no cover - only ever decorated, never called
-    """A function to ask numba whether it can cache the kernels of this file."""
 
-
-def _can_cache() -> bool:
-    """Whether numba has a writable cache location for this file: the package's ``__pycache__``,
-    ``NUMBA_CACHE_DIR`` or the user's cache directory. A read-only install run by a user without
-    a writable home has none; the kernels then compile once per process instead of failing."""
-    try:
-        numba.njit(cache=True)(_probe)
-    except RuntimeError:
-        return False
-    return True
-
-
-_JIT = {"cache": _can_cache(), "nogil": True, "error_model": "numpy"}
+_JIT = {"cache": CAN_CACHE, "nogil": True, "error_model": "numpy"}
 
 
 @numba.njit(**_JIT)

@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from quadnav_onboard.frames import quat_to_rotmat, rotmat_yaw
 from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig
+from sim_harness.jit import CAN_CACHE
 from sim_harness.noise import DepthNoise, apply_depth_noise
 from sim_harness.world import Geometry, World
 
@@ -88,22 +89,8 @@ NETWORK_32 = CameraModel(OUT_SIZE, OUT_SIZE)
 PARALLEL_MIN_POSES = 64
 """Batches of at least this many poses are cast on numba's thread pool, smaller ones serially."""
 
-def _probe() -> None:  # pragma: no cover - only ever decorated, never called
-    """A function to ask numba whether it can cache the kernels of this file."""
 
-
-def _can_cache() -> bool:
-    """Whether numba has a writable cache location for this file: the package's ``__pycache__``,
-    ``NUMBA_CACHE_DIR`` or the user's cache directory. A read-only install run by a user without
-    a writable home has none; the kernels then compile once per process instead of failing."""
-    try:
-        numba.njit(cache=True)(_probe)
-    except RuntimeError:
-        return False
-    return True
-
-
-_JIT = {"cache": _can_cache(), "nogil": True, "fastmath": False, "error_model": "numpy"}
+_JIT = {"cache": CAN_CACHE, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
 
 @numba.njit(**_JIT)
