@@ -31,7 +31,7 @@ from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.primitives import bezier_position, bezier_velocity
 from quadnav_onboard.reward import RewardParams, reward
-from sim_harness.collision import collides, sweep_collides
+from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_network_inputs
 from sim_harness.world import World
@@ -54,6 +54,12 @@ class EnvConfig:
     """Half-width (m) of the uniform random offset of the start position on each world axis."""
     goal_radius_m: Annotated[float, pydantic.Field(gt=0)] = 1.0
     """Distance (m) to the goal that counts as reaching it."""
+    random_start_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
+    """Probability that an episode starts at a random free point along the path instead of its
+    start (training only: an ε-greedy agent rarely gets past the first obstacles, so it would
+    never see the rest of a world). The moving setpoint starts level with that point."""
+    random_start_clearance_m: Annotated[float, pydantic.Field(ge=0)] = 0.6
+    """Least clearance (m) from any solid at a random start point (beyond the quad's radius)."""
     depth_history: Annotated[int, pydantic.Field(ge=1)] = 1
     """Depth inputs stacked in the observation (1 = the paper)."""
     position_history: Annotated[int, pydantic.Field(ge=1)] = 1
@@ -158,6 +164,30 @@ class VecQuadNavEnv:
                 self.pos_m[ids[j]] = trail[hits[0], j]
                 self.vel_m_s[ids[j]] = 0.0
 
+    def _random_starts(self, world: World, ids: NDArray[np.int64], tries: int = 8) -> None:
+        """Move a random share of ``ids`` to free points along the path (see ``random_start_prob``).
+
+        The step counter starts level with the point, so the moving setpoint is where it would be
+        had the quad flown there on schedule; points too close to a solid are redrawn a few times,
+        then the env keeps the path's start.
+        """
+        cfg, path = self.config, world.path
+        chosen = ids[self.rng.random(ids.size) < cfg.random_start_prob]
+        if chosen.size == 0:
+            return
+        step_m = path.speed_m_s * self.prims.duration_s
+        arc = self.rng.uniform(0.0, 0.9 * path.length_m, size=(tries, chosen.size))
+        jitter = self.rng.uniform(-1.0, 1.0, size=(tries, chosen.size, 3)) * cfg.start_jitter_m
+        cand = path.point_at(arc) + jitter  # (tries, m, 3)
+        free = clearance_m(world, cand.reshape(-1, 3)).reshape(tries, -1) > (
+            cfg.quad.radius_m + cfg.random_start_clearance_m
+        )
+        first = np.argmax(free, axis=0)
+        ok = free[first, np.arange(chosen.size)]
+        pick = np.arange(chosen.size)[ok]
+        self.pos_m[chosen[ok]] = cand[first[ok], pick]
+        self.steps[chosen[ok]] = np.floor(arc[first[ok], pick] / step_m).astype(np.int64)
+
     # -- API -------------------------------------------------------------------------------------
     def reset(self, mask: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Start new episodes in the envs of ``mask`` (all if None); returns the observations."""
@@ -168,13 +198,15 @@ class VecQuadNavEnv:
         m = ids.size
         self.world_idx[ids] = self.rng.choice(len(self.worlds), size=m, p=self._world_p)
         jitter = self.rng.uniform(-1.0, 1.0, size=(m, 3)) * self.config.start_jitter_m
+        self.steps[ids] = 0
         for w in np.unique(self.world_idx[ids]):
             sel = ids[self.world_idx[ids] == w]
             self.pos_m[sel] = self.worlds[w].path.start_m + jitter[self.world_idx[ids] == w]
+            if self.config.random_start_prob > 0.0:
+                self._random_starts(self.worlds[w], sel)
         self.vel_m_s[ids] = 0.0
         self.cmd_pos_m[ids] = self.pos_m[ids]
         self.cmd_vel_m_s[ids] = 0.0
-        self.steps[ids] = 0
         self.episode_return[ids] = 0.0
         self.done[ids] = False
         for world, sel in self._groups(mask):

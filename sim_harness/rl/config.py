@@ -54,6 +54,8 @@ class TrainConfig:
     """Step limit per training episode."""
     start_jitter_m: Annotated[float, pydantic.Field(ge=0)] = 0.5
     """Half-width (m) of the random start offset per axis."""
+    random_start_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
+    """Share of training episodes started at a random free point along the path (0 = the paper)."""
     eps_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 1.0
     """ε at episode 0."""
     eps_end: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.1

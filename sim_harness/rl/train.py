@@ -58,6 +58,7 @@ def env_config_for(cfg: TrainConfig) -> EnvConfig:
     return EnvConfig(
         max_steps=cfg.max_steps,
         start_jitter_m=cfg.start_jitter_m,
+        random_start_prob=cfg.random_start_prob,
         depth_history=cfg.depth_history,
         position_history=cfg.position_history,
     )
