@@ -266,3 +266,18 @@ async def test_a_pilots_switch_to_offboard_is_the_go_and_is_not_repeated(forward
     assert streamed_before_switch == [True]  # PX4 needs a live stream to accept OFFBOARD
     assert s.stop_reason == "goal_reached"
     assert "arm" not in rig.commands() and "offboard_start" not in rig.commands()
+
+
+async def test_a_camera_that_cannot_open_is_a_refusal_and_nothing_arms(forward_policy: Policy) -> None:
+    """A sensor failing to open is a pre-flight refusal (exit 2), not an internal error."""
+
+    class BrokenCamera(FakeDepthSource):
+        async def __aenter__(self):  # type: ignore[override]
+            raise OSError("/dev/video9: no such device")
+
+    rig = Rig(forward_policy)
+    rig.daemon.depth_source = BrokenCamera(fps=30.0)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "preflight_failed" and s.exit_code == 2
+    assert "/dev/video9" in s.detail
+    assert "arm" not in rig.commands()

@@ -52,6 +52,10 @@ __all__ = ["FlightDaemon"]
 log = get_logger("quadnav.daemon")
 
 
+class _SensorOpenError(RuntimeError):
+    """A depth or odometry source failed to open (before anything armed)."""
+
+
 class FlightDaemon(StopLadder):
     """Fly one mission. Build with sources, a vehicle link and a policy; ``await run()``."""
 
@@ -100,8 +104,11 @@ class FlightDaemon(StopLadder):
         installed = self._install_signals(loop)
         try:
             async with contextlib.AsyncExitStack() as stack:
-                await stack.enter_async_context(self.depth_source)
-                await stack.enter_async_context(self.odometry_source)
+                try:
+                    await stack.enter_async_context(self.depth_source)
+                    await stack.enter_async_context(self.odometry_source)
+                except Exception as exc:  # nothing is armed yet: a refusal, not a bug
+                    raise _SensorOpenError(f"{type(exc).__name__}: {exc}") from exc
                 stack.push_async_callback(self.vehicle.close)
                 async with asyncio.TaskGroup() as tg:
                     background = [
@@ -123,7 +130,10 @@ class FlightDaemon(StopLadder):
             if self._hold_task is not None:
                 with contextlib.suppress(Exception, asyncio.CancelledError):
                     await asyncio.wait_for(self._hold_task, 1.0)
-        except Exception as exc:  # a source that cannot even open, or a bug
+        except _SensorOpenError as exc:
+            log.error("sensor_open_failed", error=str(exc))
+            self.request_stop(StopReason.PREFLIGHT_FAILED, f"a sensor cannot open: {exc}")
+        except Exception as exc:  # a bug
             log.exception("daemon_error", error=str(exc))
             self.request_stop(StopReason.INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
         finally:
