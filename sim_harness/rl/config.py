@@ -48,6 +48,11 @@ class TrainConfig:
     """Paper world ids visited at random during training (never 8-10: they are held out)."""
     world_files: tuple[str, ...] = ()
     """World YAML files to train on instead of ``train_worlds`` (when not empty)."""
+    procedural_worlds: Annotated[int, pydantic.Field(ge=0)] = 0
+    """Procedurally generated worlds of the paper's families added to the training set
+    (sim_harness.procgen; 0 = the paper), drawn from ``procedural_seed``."""
+    procedural_seed: int = 20261124
+    """Seed of the procedural world generator (fixed: the training set is part of the recipe)."""
     n_envs: Annotated[int, pydantic.Field(ge=1)] = 16
     """Environments stepped together (vectorised numpy)."""
     max_steps: Annotated[int, pydantic.Field(ge=1)] = 120

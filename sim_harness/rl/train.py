@@ -29,6 +29,7 @@ from sim_harness.rl.config import TrainConfig, load_train_config, read_config_fi
 from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
 from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
 from sim_harness.rl.schedules import LinearSchedule
+from sim_harness.procgen import procedural_worlds
 from sim_harness.world import load_world, paper_world_path
 
 __all__ = ["TrainResult", "env_config_for", "network_config_for", "train"]
@@ -112,6 +113,7 @@ def train(
     env_cfg = env_config_for(cfg)
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
     worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
+    worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed)
     if resume is None:
         run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
         (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
