@@ -24,12 +24,12 @@ from tqdm import tqdm
 from quadnav_onboard.checkpoint import save_checkpoint
 from quadnav_onboard.network import NetworkConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
 from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
 from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
 from sim_harness.rl.schedules import LinearSchedule
-from sim_harness.procgen import procedural_worlds
 from sim_harness.world import load_world, paper_world_path
 
 __all__ = ["TrainResult", "env_config_for", "network_config_for", "train"]
