@@ -76,14 +76,19 @@ def preprocess_depth_mm(
         raise DepthFrameError(
             f"depth frame must be 2-D and at least {OUT_SIZE}x{OUT_SIZE}, got shape {arr.shape}"
         )
-    max_mm = cfg.max_range_m * 1000.0
-    valid = (arr > 0) & (arr <= max_mm)
-    frac = float(valid.mean())
+    # The same mapping as normalize_depth_m, done in the integer domain in a few passes (this runs
+    # on every decision in flight): 0 and > max read as max, < min as min, then area-average.
+    max_mm = int(np.floor(cfg.max_range_m * 1000.0))
+    min_mm = min(int(np.ceil(cfg.min_range_m * 1000.0)), max_mm)
+    valid = (arr - np.uint16(1)) < np.uint16(max_mm)  # uint16 wrap-around: 0 -> 65535, invalid
+    frac = np.count_nonzero(valid) / valid.size
     if frac < cfg.min_valid_fraction:
         raise DepthFrameError(
             f"depth frame has {frac:.1%} valid pixels (< {cfg.min_valid_fraction:.0%}): "
             "camera blocked or broken?"
         )
-    depth_m = arr.astype(np.float32) * np.float32(0.001)
-    out = area_downsample(normalize_depth_m(depth_m, cfg))
+    depth_mm = np.where(valid, arr, np.uint16(max_mm))
+    np.maximum(depth_mm, np.uint16(min_mm), out=depth_mm)
+    out = area_downsample(depth_mm.astype(np.float32))
+    out *= np.float32(1.0 / (cfg.max_range_m * 1000.0))
     return np.clip(out, cfg.min_range_m / cfg.max_range_m, 1.0, out=out)  # float rounding of the mean
