@@ -388,6 +388,7 @@ class FlightDaemon(StopLadder):
             self.decision_t = t_decide
             self.trajectory = prim
             self.new_trajectory.set()
+            await asyncio.sleep(0)  # let the streamer send the new primitive before we log and record
             end_world, end_vel = prim.end_world_m, prim.end_vel_world_m_s
             self.recorder.network_input(t_decide, k, depth_in)
             pending = {
