@@ -281,3 +281,26 @@ async def test_a_camera_that_cannot_open_is_a_refusal_and_nothing_arms(forward_p
     assert s.stop_reason == "preflight_failed" and s.exit_code == 2
     assert "/dev/video9" in s.detail
     assert "arm" not in rig.commands()
+
+
+async def test_inputs_are_checked_again_at_the_go_before_arming(
+    forward_policy: Policy, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A camera that dies between preflight and the go is caught before arming: nothing arms."""
+    import types
+
+    import quadnav_onboard.trigger as trigger_mod
+
+    rig = Rig(forward_policy)
+
+    async def go_after_camera_died(*_a: object, **_k: object) -> types.SimpleNamespace:
+        rig.depth.paused = True
+        await asyncio.sleep(fast_config().safety.stale_depth_s + 0.2)
+        return types.SimpleNamespace(mode="socket", detail="GO")
+
+    monkeypatch.setattr(trigger_mod, "wait_for_go", go_after_camera_died)
+    rig.daemon.trigger = types.SimpleNamespace(mode="socket")
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "preflight_failed" and s.exit_code == 2
+    assert "depth" in s.detail
+    assert "arm" not in rig.commands()

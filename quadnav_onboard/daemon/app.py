@@ -231,14 +231,7 @@ class FlightDaemon(StopLadder):
         deadline = time.monotonic() + cfg.vehicle.health_timeout_s
         while True:
             now = time.monotonic()
-            checks = [
-                check_depth_frame(
-                    self.latest_depth.value, now, cfg.safety.stale_depth_s, self.preprocess_cfg
-                ),
-                check_odometry(self.latest_odom.value, now, cfg.safety.stale_odometry_s),
-                check_vehicle_ready(self.vehicle.state),
-                check_start_inside(self.path.start_m, cfg.safety),
-            ]
+            checks = self._input_checks(now)
             failed = [c for c in checks if not c.ok]
             if not failed:
                 for c in checks:
@@ -249,6 +242,16 @@ class FlightDaemon(StopLadder):
             if hard or now > deadline:
                 raise PreflightError((hard or failed)[0])
             await asyncio.sleep(0.05)
+
+    def _input_checks(self, now: float) -> list[PreflightCheck]:
+        """Depth, odometry, vehicle health and path: run before READY and again right before arming."""
+        cfg = self.cfg
+        return [
+            check_depth_frame(self.latest_depth.value, now, cfg.safety.stale_depth_s, self.preprocess_cfg),
+            check_odometry(self.latest_odom.value, now, cfg.safety.stale_odometry_s),
+            check_vehicle_ready(self.vehicle.state),
+            check_start_inside(self.path.start_m, cfg.safety),
+        ]
 
     def _check_model(self) -> PreflightCheck:
         pol = self.policy
@@ -300,6 +303,15 @@ class FlightDaemon(StopLadder):
             )
             self.streaming = True
             await asyncio.sleep(3.0 / self.cfg.vehicle.setpoint_rate_hz)
+        # The go may come minutes after preflight: every input must still be healthy to fly. (A
+        # pilot who armed and switched to OFFBOARD as the go has armed the vehicle on purpose.)
+        pilot_armed = self.vehicle.state.armed
+        failed = [
+            c for c in self._input_checks(time.monotonic())
+            if not c.ok and not (pilot_armed and c.name == "vehicle")
+        ]
+        if failed:
+            raise PreflightError(failed[0])
         self.flying = True
         if not self.vehicle.state.armed:
             await self.vehicle.arm()
