@@ -17,6 +17,9 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
+from quadnav_onboard.sdnotify import SdNotifier
+from quadnav_onboard.trigger import MissionTriggerConfig, trigger_config_from_mapping
+
 __all__ = ["build_parser", "main"]
 
 
@@ -119,19 +122,12 @@ def main(argv: list[str] | None = None) -> int:
     return summary.exit_code
 
 
-def _trigger_config(cfg: Any, source: str, *, simulated: bool) -> Any:
-    try:
-        from quadnav_onboard.trigger import trigger_config_from_mapping
-    except ImportError:  # pragma: no cover - trigger module ships with the package
-        return None
+def _trigger_config(cfg: Any, source: str, *, simulated: bool) -> MissionTriggerConfig:
+    # No fallback: a missing trigger would read as "auto", i.e. a vehicle that starts by itself.
     return trigger_config_from_mapping(cfg.trigger, source=source, simulated=simulated)
 
 
-def _notifier() -> Any:
-    try:
-        from quadnav_onboard.sdnotify import SdNotifier
-    except ImportError:  # pragma: no cover
-        return None
+def _notifier() -> SdNotifier:
     return SdNotifier.from_env()
 
 

@@ -133,9 +133,7 @@ class VecQuadNavEnv:
         ids = np.flatnonzero(mask)
         return [(self.worlds[w], ids[self.world_idx[ids] == w]) for w in np.unique(self.world_idx[ids])]
 
-    def _path_terms(
-        self, ids: NDArray[np.int64], world: World, pos: NDArray, k: NDArray
-    ) -> dict[str, NDArray]:
+    def _path_terms(self, world: World, pos: NDArray, k: NDArray) -> dict[str, NDArray]:
         path = world.path
         arc, dev = path.closest(pos)
         yaw = path.yaw_at(arc)
@@ -210,7 +208,7 @@ class VecQuadNavEnv:
         self.episode_return[ids] = 0.0
         self.done[ids] = False
         for world, sel in self._groups(mask):
-            t = self._path_terms(sel, world, self.pos_m[sel], self.steps[sel])
+            t = self._path_terms(world, self.pos_m[sel], self.steps[sel])
             depth, rel = self._observe(sel, world, t["yaw"], t["sp"])
             self.depth[sel] = depth[:, None]
             self.rel[sel] = rel[:, None]
@@ -265,7 +263,7 @@ class VecQuadNavEnv:
                 self._stop_at_contact(world, ids, collided, trail)
             pos = self.pos_m[ids]
             k1 = self.steps[ids]
-            t = self._path_terms(ids, world, pos, k1)
+            t = self._path_terms(world, pos, k1)
             d_now = np.linalg.norm(t["sp"] - pos, axis=-1)
             deviated = t["dev"] > cfg.reward.max_deviation_m
             goal = (t["goal_dist"] <= cfg.goal_radius_m) | (t["arc"] >= path.length_m - 1e-9)
