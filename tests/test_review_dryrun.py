@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -24,6 +25,24 @@ bounds: {floor_z: 0.0, ceiling_z: 6.0}
 """
 
 
+def _dry_run_cmd(world: Path, model: Path, rec_dir: Path) -> list[str]:
+    """``quadnav-onboard --dry-run`` of ``world`` with ``model``, recording into ``rec_dir``."""
+    return [
+        sys.executable,
+        "-m",
+        "quadnav_onboard.cli",
+        "--dry-run",
+        "--world",
+        str(world),
+        "--model",
+        str(model),
+        "--record-dir",
+        str(rec_dir),
+        "--log-format",
+        "json",
+    ]
+
+
 @pytest.mark.e2e
 @pytest.mark.slow
 def test_dry_run_record_reviews_to_the_row_the_daemon_printed(tmp_path):
@@ -34,20 +53,7 @@ def test_dry_run_record_reviews_to_the_row_the_daemon_printed(tmp_path):
     world.write_text(SHORT_WORLD)
     rec_dir = tmp_path / "records"
     flight = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "quadnav_onboard.cli",
-            "--dry-run",
-            "--world",
-            str(world),
-            "--model",
-            str(model),
-            "--record-dir",
-            str(rec_dir),
-            "--log-format",
-            "json",
-        ],
+        _dry_run_cmd(world, model, rec_dir),
         capture_output=True,
         text=True,
         timeout=150,
@@ -101,20 +107,7 @@ def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path):
     world.write_text(SHORT_WORLD.replace("[5, 0, 2]", "[40, 0, 2]"))
     rec_dir = tmp_path / "records"
     daemon = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "quadnav_onboard.cli",
-            "--dry-run",
-            "--world",
-            str(world),
-            "--model",
-            str(model),
-            "--record-dir",
-            str(rec_dir),
-            "--log-format",
-            "json",
-        ],
+        _dry_run_cmd(world, model, rec_dir),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
