@@ -47,7 +47,8 @@ class DQN(nn.Module):
 
     ``forward(depth, rel_pos)``: depth float32 (B, depth_history, 32, 32) in [0, 1];
     rel_pos float32 (B, position_history, 3), metres, heading frame (x fwd, y left, z up), oldest
-    first. Returns Q-values (B, n_actions).
+    first. Returns Q-values (B, n_actions). ``forward`` is exactly
+    ``q_from_features(depth_features(depth), rel_pos)``.
     """
 
     def __init__(self, config: NetworkConfig = NetworkConfig()) -> None:
@@ -79,12 +80,24 @@ class DQN(nn.Module):
             self.out = nn.Linear(32, config.n_actions)
 
     def forward(self, depth: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
-        d = self.depth_lane(depth)
+        return self.q_from_features(self.depth_features(depth), rel_pos)
+
+    def depth_features(self, depth: torch.Tensor) -> torch.Tensor:
+        """The depth lane alone: depth (B, depth_history, 32, 32) -> features (B, 64).
+
+        With :meth:`q_from_features` this splits :meth:`forward` in two, so the flight daemon can
+        run the depth lane when a frame arrives and only the rest at the step boundary.
+        """
+        return self.depth_lane(depth)
+
+    def q_from_features(self, features: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
+        """The position lane, trunk and head: features (B, 64), rel_pos (B, position_history, 3)
+        -> Q-values (B, n_actions)."""
         p = torch.cat(
             [self.pos_x(rel_pos[..., 0]), self.pos_y(rel_pos[..., 1]), self.pos_z(rel_pos[..., 2])],
             dim=-1,
         )
-        h = self.trunk(torch.cat([d, self.pos_merge(p)], dim=-1))
+        h = self.trunk(torch.cat([features, self.pos_merge(p)], dim=-1))
         if self.config.dueling:
             adv = self.advantage(h)
             return self.value(h) + adv - adv.mean(dim=-1, keepdim=True)

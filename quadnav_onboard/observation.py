@@ -25,7 +25,8 @@ class ObservationHistory:
 
     ``reset`` fills every slot with the first observation (so the network never sees zeros that no
     sensor produced); ``push`` drops the oldest and appends the newest; ``arrays`` returns copies,
-    oldest first: depth (k_d, 32, 32) float32 and rel (k_p, 3) float32.
+    oldest first: depth (k_d, 32, 32) float32 and rel (k_p, 3) float32. ``version`` counts resets
+    and pushes, so a result computed from :meth:`depth_with` can tell whether it is still current.
     """
 
     def __init__(self, depth_history: int = 1, position_history: int = 1) -> None:
@@ -39,6 +40,8 @@ class ObservationHistory:
         self._depth = np.ones((self.depth_history, INPUT_SIZE, INPUT_SIZE), dtype=np.float32)
         self._rel = np.zeros((self.position_history, 3), dtype=np.float32)
         self._ready = False
+        self.version = 0
+        """Incremented by every :meth:`reset` and :meth:`push`."""
 
     @property
     def ready(self) -> bool:
@@ -46,14 +49,21 @@ class ObservationHistory:
         return self._ready
 
     @staticmethod
-    def _check(depth_input: ArrayLike, rel_pos_body_m: ArrayLike) -> tuple[NDArray[np.float32], NDArray]:
+    def _check_depth(depth_input: ArrayLike) -> NDArray[np.float32]:
         d = np.asarray(depth_input, dtype=np.float32)
-        r = np.asarray(rel_pos_body_m, dtype=np.float32)
         if d.shape != (INPUT_SIZE, INPUT_SIZE):
             raise ValueError(f"depth input must have shape (32, 32), got {d.shape}")
+        if not np.all(np.isfinite(d)):
+            raise ValueError("observation contains NaN or Inf")
+        return d
+
+    @classmethod
+    def _check(cls, depth_input: ArrayLike, rel_pos_body_m: ArrayLike) -> tuple[NDArray[np.float32], NDArray]:
+        d = cls._check_depth(depth_input)
+        r = np.asarray(rel_pos_body_m, dtype=np.float32)
         if r.shape != (3,):
             raise ValueError(f"relative position must have shape (3,), got {r.shape}")
-        if not (np.all(np.isfinite(d)) and np.all(np.isfinite(r))):
+        if not np.all(np.isfinite(r)):
             raise ValueError("observation contains NaN or Inf")
         return d, r
 
@@ -63,6 +73,7 @@ class ObservationHistory:
         self._depth[:] = d
         self._rel[:] = r
         self._ready = True
+        self.version += 1
 
     def push(self, depth_input: ArrayLike, rel_pos_body_m: ArrayLike) -> None:
         """Append the newest observation, dropping the oldest. Calls :meth:`reset` if not ready."""
@@ -74,9 +85,24 @@ class ObservationHistory:
         self._depth[-1] = d
         self._rel[:-1] = self._rel[1:].copy()
         self._rel[-1] = r
+        self.version += 1
+
+    def depth_with(self, depth_input: ArrayLike) -> NDArray[np.float32]:
+        """The depth stack (k_d, 32, 32) that ``push(depth_input, ...)`` would make, oldest first,
+        without pushing: the last k_d - 1 inputs and this one (every slot this one if not ready)."""
+        d = self._check_depth(depth_input)
+        if not self._ready:
+            return np.repeat(d[None], self.depth_history, axis=0)
+        return np.concatenate([self._depth[1:], d[None]])
 
     def arrays(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Copies, oldest first: depth (k_d, 32, 32) float32 in [0, 1], rel (k_p, 3) float32 (m)."""
         if not self._ready:
             raise RuntimeError("ObservationHistory.arrays() before reset()")
         return self._depth.copy(), self._rel.copy()
+
+    def rel_array(self) -> NDArray[np.float32]:
+        """A copy of the relative positions alone, oldest first: (k_p, 3) float32 (m)."""
+        if not self._ready:
+            raise RuntimeError("ObservationHistory.rel_array() before reset()")
+        return self._rel.copy()

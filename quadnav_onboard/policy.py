@@ -3,6 +3,11 @@
 ``Policy.act(depth, rel)`` runs the Q-network once without gradients and returns the arg-max
 action and the Q-values. Inputs are the arrays of :class:`quadnav_onboard.observation.ObservationHistory`:
 depth (k_d, 32, 32) float32 in [0, 1] and rel (k_p, 3) float32, metres, heading frame, oldest first.
+
+The same decision in two halves, for the flight daemon (which runs the depth half when a frame
+arrives): ``act_from_features(depth_features(depth), rel)`` equals ``act(depth, rel)``.
+``allowed`` (optional, bool (n_actions,)) restricts the arg-max to the allowed actions; when none
+is allowed it is ignored (arg-max over all actions), so the policy always returns an action.
 """
 
 from __future__ import annotations
@@ -59,13 +64,42 @@ class Policy:
         with torch.inference_mode():
             return self.model(d, r).numpy()
 
-    def act(self, depth: ArrayLike, rel: ArrayLike) -> tuple[int, NDArray[np.float32]]:
+    def act(
+        self, depth: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None
+    ) -> tuple[int, NDArray[np.float32]]:
         """Greedy action for one observation; returns (action index, Q-values (n_actions,))."""
-        d = np.asarray(depth, dtype=np.float32)
-        r = np.asarray(rel, dtype=np.float32)
+        return self.act_from_features(self.depth_features(depth), rel, allowed)
+
+    def depth_features(self, depth: ArrayLike) -> NDArray[np.float32]:
+        """The network's depth lane for one depth stack (k_d, 32, 32): features float32 (64,)."""
+        d = np.ascontiguousarray(depth, dtype=np.float32)
         if d.shape != (self.depth_history, 32, 32):
             raise ValueError(f"depth must have shape ({self.depth_history}, 32, 32), got {d.shape}")
+        with torch.inference_mode():
+            return self.model.depth_features(torch.from_numpy(d[None]))[0].numpy()
+
+    def act_from_features(
+        self, features: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None
+    ) -> tuple[int, NDArray[np.float32]]:
+        """The rest of the network and the arg-max: features (64,) from :meth:`depth_features`,
+        rel (k_p, 3); returns (action index, Q-values (n_actions,)).
+
+        ``allowed``: bool (n_actions,); the arg-max is over the allowed actions only, or over all
+        of them if none is allowed. The Q-values returned are all of them, unmasked.
+        """
+        f = np.ascontiguousarray(features, dtype=np.float32)
+        r = np.ascontiguousarray(rel, dtype=np.float32)
+        if f.ndim != 1:
+            raise ValueError(f"features must be 1-D, got shape {f.shape}")
         if r.shape != (self.position_history, 3):
             raise ValueError(f"rel must have shape ({self.position_history}, 3), got {r.shape}")
-        q = self.q_values_batch(d[None], r[None])[0]
-        return int(np.argmax(q)), q
+        with torch.inference_mode():
+            q = self.model.q_from_features(torch.from_numpy(f[None]), torch.from_numpy(r[None]))[0].numpy()
+        if allowed is None:
+            return int(np.argmax(q)), q
+        mask = np.asarray(allowed, dtype=bool)
+        if mask.shape != (self.n_actions,):
+            raise ValueError(f"allowed must have shape ({self.n_actions},), got {mask.shape}")
+        if not mask.any():
+            return int(np.argmax(q)), q
+        return int(np.argmax(np.where(mask, q, -np.inf))), q

@@ -34,6 +34,33 @@ def test_options_change_the_input_shape():
     assert q.shape == (2, 18)
 
 
+@pytest.mark.parametrize(
+    "cfg",
+    [NetworkConfig(), NetworkConfig(dueling=True), NetworkConfig(depth_history=3, position_history=2, dueling=True)],
+    ids=["paper", "dueling", "history+dueling"],
+)
+def test_the_two_halves_compose_to_forward_exactly(cfg):
+    """q_from_features(depth_features(d), r) is forward(d, r), bit for bit, and the features are (B, 64)."""
+    torch.manual_seed(2)
+    net = DQN(cfg).eval()
+    d = torch.rand(5, cfg.depth_history, 32, 32)
+    r = torch.randn(5, cfg.position_history, 3) * 3
+    with torch.inference_mode():
+        features = net.depth_features(d)
+        assert features.shape == (5, 64)
+        assert torch.equal(net.q_from_features(features, r), net(d, r))
+
+
+def test_the_split_keeps_the_checkpoint_layout():
+    """Same parameters under the same state_dict keys as before the split: old checkpoints load."""
+    lanes = [f"depth_lane.{i}" for i in (0, 2, 4, 7, 9)] + ["pos_x.0", "pos_y.0", "pos_z.0", "pos_merge.0"]
+    body = [*lanes, "trunk.0", "trunk.2"]
+    keys = [f"{m}.{p}" for m in body for p in ("weight", "bias")]
+    assert list(DQN().state_dict()) == [*keys, "out.weight", "out.bias"]
+    dueling = [*keys, "value.weight", "value.bias", "advantage.weight", "advantage.bias"]
+    assert list(DQN(NetworkConfig(dueling=True)).state_dict()) == dueling
+
+
 def test_checkpoint_round_trip(tmp_path):
     """Saved weights and settings load back identical, in eval mode."""
     torch.manual_seed(1)

@@ -77,6 +77,63 @@ def test_policy_picks_the_argmax_of_the_network(tmp_path) -> None:
     assert policy.preprocess_config().max_range_m == 10.0
 
 
+def test_history_depth_with_is_the_stack_a_push_would_make_without_pushing() -> None:
+    """depth_with(d) equals the depth stack after push(d, ·), and leaves the history and its version alone."""
+    h = ObservationHistory(depth_history=3, position_history=2)
+    np.testing.assert_array_equal(h.depth_with(_frame(0.7)), np.full((3, 32, 32), 0.7, np.float32))
+    h.reset(_frame(0.1), [0.0, 0.0, 0.0])
+    h.push(_frame(0.2), [1.0, 0.0, 0.0])
+    before, version = h.arrays(), h.version
+    candidate = h.depth_with(_frame(0.3))
+    np.testing.assert_array_equal(h.arrays()[0], before[0])
+    assert h.version == version
+    h.push(_frame(0.3), [2.0, 0.0, 0.0])
+    np.testing.assert_array_equal(candidate, h.arrays()[0])
+    np.testing.assert_array_equal(h.rel_array(), h.arrays()[1])
+    assert h.version == version + 1
+
+
+def _policy(tmp_path, cfg: NetworkConfig) -> Policy:
+    torch.manual_seed(3)
+    return Policy.from_path(save_checkpoint(tmp_path / "m.pt", DQN(cfg)))
+
+
+@pytest.mark.parametrize("cfg", [NetworkConfig(), NetworkConfig(depth_history=3, position_history=2, dueling=True)])
+def test_act_from_features_of_depth_features_is_act(tmp_path, cfg: NetworkConfig) -> None:
+    """The two halves the daemon runs at different times give act's action and Q-values exactly."""
+    policy = _policy(tmp_path, cfg)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        depth = rng.random((cfg.depth_history, 32, 32), dtype=np.float32)
+        rel = rng.normal(size=(cfg.position_history, 3)).astype(np.float32)
+        features = policy.depth_features(depth)
+        assert features.shape == (64,) and features.dtype == np.float32
+        a1, q1 = policy.act(depth, rel)
+        a2, q2 = policy.act_from_features(features, rel)
+        assert a1 == a2
+        np.testing.assert_array_equal(q1, q2)
+
+
+def test_allowed_restricts_the_argmax_and_none_allowed_means_all(tmp_path) -> None:
+    """The arg-max is over the allowed actions; with none allowed it is over all; Q-values stay unmasked."""
+    policy = _policy(tmp_path, NetworkConfig())
+    rng = np.random.default_rng(2)
+    depth, rel = rng.random((1, 32, 32), dtype=np.float32), rng.normal(size=(1, 3)).astype(np.float32)
+    best, q = policy.act(depth, rel)
+    allowed = np.ones(18, bool)
+    allowed[best] = False
+    action, q_masked = policy.act(depth, rel, allowed)
+    assert action != best and action == int(np.argmax(np.where(allowed, q, -np.inf)))
+    np.testing.assert_array_equal(q_masked, q)
+    only = np.zeros(18, bool)
+    only[3] = True
+    assert policy.act(depth, rel, only)[0] == 3
+    assert policy.act(depth, rel, np.zeros(18, bool))[0] == best
+    assert policy.act(depth, rel, np.ones(18, bool))[0] == best
+    with pytest.raises(ValueError, match="allowed must have shape"):
+        policy.act(depth, rel, np.ones(5, bool))
+
+
 def test_policy_rejects_observations_of_the_wrong_history_length(tmp_path) -> None:
     path = save_checkpoint(tmp_path / "m.pt", DQN(NetworkConfig()))
     policy = Policy.from_path(path)
