@@ -98,6 +98,16 @@ async def test_a_clear_path_is_flown_to_the_goal_then_held_and_landed(forward_po
     assert s.decision_latency_ms["n"] == s.steps
 
 
+async def test_decisions_use_frames_prepared_on_arrival(forward_policy: Policy) -> None:
+    """Frames are prepared as they arrive, so steps run only the head; every step is counted once."""
+    rig = Rig(forward_policy)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "goal_reached"
+    assert s.decision_paths["prepared"] + s.decision_paths["full"] == s.steps
+    assert s.decision_paths["prepared"] >= 1
+    assert s.frame_age_ms["n"] == s.steps and s.frame_age_ms["max_ms"] < 300
+
+
 async def test_depth_feed_stopping_mid_flight_holds_then_lands(forward_policy: Policy) -> None:
     rig = Rig(forward_policy)
     s = await rig.in_mission_then(lambda: setattr(rig.depth, "paused", True), min_steps=2)
@@ -125,6 +135,14 @@ async def test_wrong_dtype_depth_in_flight_stops(forward_policy: Policy) -> None
         lambda: setattr(rig.depth, "make", lambda i: np.ones((240, 424), np.float32))
     )
     assert s.stop_reason == "bad_depth" and "hold" in rig.commands()
+
+
+async def test_a_blank_depth_frame_in_flight_stops_for_bad_depth(forward_policy: Policy) -> None:
+    """All-invalid frames (camera blocked) pass the cheap dtype check but not preprocessing: bad_depth."""
+    rig = Rig(forward_policy)
+    s = await rig.in_mission_then(lambda: setattr(rig.depth, "depth_mm", 0))
+    assert s.stop_reason == "bad_depth" and s.exit_code == 3 and "valid pixels" in s.detail
+    assert "hold" in rig.commands()
 
 
 async def test_the_step_limit_holds(forward_policy: Policy) -> None:

@@ -4,7 +4,9 @@ One ``asyncio.TaskGroup`` holds the data-flow tasks (see :mod:`quadnav_onboard.d
 depth ingest and odometry ingest (latest value wins), vehicle telemetry, the 20 Hz setpoint
 streamer and the supervisor. The lifecycle runs in the group's body and always ends in
 :meth:`FlightDaemon._respond`, which leaves the vehicle holding, landed, or (pilot takeover, link
-loss) untouched. The DQN runs in a one-thread executor so the loop never stalls.
+loss) untouched. The DQN runs in a one-thread executor so the loop never stalls: each depth frame
+is prepared (preprocessed, depth lane run) as it arrives, and at the step boundary only the rest
+of the network runs (:mod:`quadnav_onboard.daemon.decide`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.daemon.decide import Decider
 from quadnav_onboard.daemon.ladder import StopLadder
 from quadnav_onboard.daemon.mission import (
     ActivePrimitive,
@@ -40,10 +43,9 @@ from quadnav_onboard.daemon.supervisor import (
     check_vehicle_ready,
 )
 from quadnav_onboard.logs import get_logger
-from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy
-from quadnav_onboard.preprocess import preprocess_depth_mm
+from quadnav_onboard.preprocess import DepthFrameError
 from quadnav_onboard.sources.base import DepthSource, OdometrySource
 from quadnav_onboard.vehicle import VehicleError, VehicleLink
 
@@ -82,7 +84,7 @@ class FlightDaemon(StopLadder):
         self.trigger = trigger
         self.prims = (cfg.primitives or policy.primitive_config()).build()
         self.preprocess_cfg = cfg.preprocess or policy.preprocess_config()
-        self.history = ObservationHistory(policy.depth_history, policy.position_history)
+        self.decider = Decider(policy, self.preprocess_cfg)
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqn")
         self.flying = False
         self.total_reward = 0.0
@@ -113,6 +115,7 @@ class FlightDaemon(StopLadder):
                 async with asyncio.TaskGroup() as tg:
                     background = [
                         tg.create_task(self.ingest_depth(), name="depth"),
+                        tg.create_task(self.prepare_depth(), name="depth_prepare"),
                         tg.create_task(self.ingest_odometry(), name="odometry"),
                         tg.create_task(self.supervise(), name="supervisor"),
                         tg.create_task(self.stream_setpoints(), name="setpoints"),
@@ -351,13 +354,6 @@ class FlightDaemon(StopLadder):
 
     # --- mission -------------------------------------------------------------------------------
 
-    def _decide(self, depth_mm: np.ndarray, rel: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-        """Executor thread: preprocess the newest frame, push the observation, run the DQN."""
-        depth_in = preprocess_depth_mm(depth_mm, self.preprocess_cfg)
-        self.history.push(depth_in, rel)
-        action, q = self.policy.act(*self.history.arrays())
-        return action, q, depth_in
-
     async def _mission(self) -> None:
         self.phase = "mission"
         self.in_mission = True
@@ -388,21 +384,25 @@ class FlightDaemon(StopLadder):
             frame = self.latest_depth.value
             t_decide = time.monotonic()
             self.t_decision_start = t_decide
-            action, q, depth_in = await loop.run_in_executor(
-                self._executor,
-                self._decide,
-                frame.depth_mm,
-                inputs.rel_pos_body_m,  # type: ignore[union-attr]
-            )
+            try:
+                decision = await loop.run_in_executor(
+                    self._executor, self.decider.decide, frame, inputs.rel_pos_body_m
+                )
+            except DepthFrameError as exc:
+                self.request_stop(StopReason.BAD_DEPTH, str(exc))
+                return
             self.t_decision_start = None
             self.last_inference_s = time.monotonic() - t_decide
+            action, q = decision.action, decision.q
             prim = ActivePrimitive(self.prims, action, end_world, end_vel, inputs.yaw_rad, time.monotonic())
             self.decision_t = t_decide
             self.trajectory = prim
             self.new_trajectory.set()
             await asyncio.sleep(0)  # let the streamer send the new primitive before we log and record
             end_world, end_vel = prim.end_world_m, prim.end_vel_world_m_s
-            self.recorder.network_input(t_decide, k, depth_in)
+            self.recorder.network_input(t_decide, k, decision.depth_input)
+            frame_age_s = t_decide - frame.t_capture_mono_s  # type: ignore[union-attr]
+            self.stats.count_decision(decision.path, frame_age_s)
             pending = {
                 "t": t_decide,
                 "step": k,
@@ -410,7 +410,7 @@ class FlightDaemon(StopLadder):
                 "q": q,
                 "inputs": inputs,
                 "pos": pos,
-                "frame_age_s": t_decide - frame.t_capture_mono_s,  # type: ignore[union-attr]
+                "frame_age_s": frame_age_s,
             }
             log.info(
                 "step",
@@ -422,7 +422,8 @@ class FlightDaemon(StopLadder):
                 rel_m=np.round(inputs.rel_pos_body_m, 2).tolist(),
                 progress_m=round(float(self.path.progress_m(pos)), 2),
                 inference_ms=round(self.last_inference_s * 1e3, 2),
-                frame_age_ms=round(pending["frame_age_s"] * 1e3, 1),
+                decision_path=decision.path,
+                frame_age_ms=round(frame_age_s * 1e3, 1),
             )
             k += 1
             self.pending_step = pending

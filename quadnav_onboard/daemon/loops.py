@@ -1,4 +1,5 @@
-"""The daemon's concurrent tasks: sensor ingest, telemetry watch, setpoint streamer, supervisor.
+"""The daemon's concurrent tasks: sensor ingest, depth preparation, telemetry watch, setpoint
+streamer, supervisor.
 
 Sensors publish into :class:`~quadnav_onboard.daemon.stats.Latest` holders (latest value wins,
 nothing queues up). A task whose source fails logs it and ends; the data it fed goes stale and the
@@ -22,6 +23,7 @@ from quadnav_onboard.daemon.stats import LatencyStats, Latest
 from quadnav_onboard.daemon.summary import NullNotifier
 from quadnav_onboard.daemon.supervisor import FlightSnapshot, StopReason, check_in_flight
 from quadnav_onboard.logs import get_logger
+from quadnav_onboard.preprocess import DepthFrameError
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 from quadnav_onboard.vehicle import VehicleError, VehicleLink
 
@@ -37,7 +39,13 @@ class RunStats:
         self.decision_latency = LatencyStats()
         """Decision start (newest frame taken) -> first setpoint of the new primitive sent."""
         self.inference = LatencyStats()
-        """Preprocess + DQN in the executor."""
+        """The step's DQN call in the executor, from the step boundary (including any wait for a
+        frame preparation already running in the one executor thread)."""
+        self.frame_age = LatencyStats()
+        """Age of the depth frame a decision used, at the step boundary (sensor latency, not
+        decision latency)."""
+        self.decision_paths = {"prepared": 0, "full": 0}
+        """Decisions that ran only the head on a prepared frame / the whole network."""
         self.setpoint_interval = LatencyStats()
         """Time between consecutive setpoints sent."""
         self.hold_reaction_s: float | None = None
@@ -45,6 +53,10 @@ class RunStats:
         self.depth_frames = 0
         self.odometry_samples = 0
         self.setpoints = 0
+
+    def count_decision(self, path: str, frame_age_s: float) -> None:
+        self.decision_paths[path] += 1
+        self.frame_age.add(frame_age_s)
 
 
 class Loops:
@@ -126,6 +138,29 @@ class Loops:
         except Exception as exc:
             log.error("depth_source_failed", error=f"{type(exc).__name__}: {exc}")
             self.recorder.event(time.monotonic(), "source_failed", f"depth: {exc}")
+
+    async def prepare_depth(self) -> None:
+        """Once flying, prepare each new depth frame in the DQN executor as it arrives.
+
+        Latest wins: frames that arrive while one is being prepared are skipped, except the newest,
+        which is prepared next. A frame that preprocessing rejects is flagged as ``depth_error``
+        (while it is still the newest), so the supervisor stops the flight for bad depth.
+        """
+        loop = asyncio.get_running_loop()
+        decider, executor = self.decider, self._executor  # type: ignore[attr-defined]
+        seq = 0
+        while True:
+            frame = await self.latest_depth.wait_newer(seq)
+            seq = self.latest_depth.seq
+            if not self.flying or self.stop_reason is not None:  # type: ignore[attr-defined]
+                continue
+            try:
+                await loop.run_in_executor(executor, decider.prepare, frame)
+            except DepthFrameError as exc:
+                if self.latest_depth.value is frame:
+                    self.depth_error = str(exc)
+            except Exception as exc:  # a bug: the step falls back to the full decision
+                log.error("depth_prepare_failed", error=f"{type(exc).__name__}: {exc}")
 
     async def ingest_odometry(self) -> None:
         """Newest pose wins; optionally forwarded to PX4 as a vision estimate (rate limited)."""

@@ -45,7 +45,11 @@ class FlightSummary:
     decision_latency_ms: dict[str, float | None]
     """Newest frame taken -> first setpoint of the new primitive sent: n, p50, p99, max (ms)."""
     inference_ms: dict[str, float | None]
-    """Preprocess + DQN: n, p50, p99, max (ms)."""
+    """The step's DQN call in the executor (head only, or preprocess + whole DQN): n, p50, p99, max (ms)."""
+    frame_age_ms: dict[str, float | None]
+    """Age of the depth frame each decision used, at the step boundary: n, p50, p99, max (ms)."""
+    decision_paths: dict[str, int]
+    """Decisions on a prepared frame (head only) and full ones: {"prepared": n, "full": n}."""
     setpoint_interval_ms: dict[str, float | None]
     """Interval between setpoints sent: n, p50, p99, max (ms)."""
     hold_reaction_ms: float | None
@@ -82,6 +86,8 @@ class FlightSummary:
             total_reward=_r(total_reward, 4) or 0.0,
             decision_latency_ms=lat(stats.decision_latency),
             inference_ms=lat(stats.inference),
+            frame_age_ms=lat(stats.frame_age),
+            decision_paths=dict(stats.decision_paths),
             setpoint_interval_ms=lat(stats.setpoint_interval),
             hold_reaction_ms=None if hold is None else _r(hold * 1e3),
             model_sha256=model_sha256,
@@ -104,7 +110,10 @@ class FlightSummary:
 
         lines = [
             fmt("decision latency (frame -> first setpoint)", self.decision_latency_ms),
-            fmt("inference (preprocess + DQN)", self.inference_ms),
+            fmt("DQN call at the step (head only, or preprocess + DQN)", self.inference_ms),
+            fmt("frame age at the step (sensor latency)", self.frame_age_ms),
+            f"decisions: {self.decision_paths['prepared']} on a prepared frame, "
+            f"{self.decision_paths['full']} full",
             fmt("setpoint interval", self.setpoint_interval_ms),
         ]
         if self.hold_reaction_ms is not None:
