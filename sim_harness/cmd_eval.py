@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -30,6 +31,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=int, default=5, help="trials per world (default 5, as in the paper)")
     p.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default 0)")
     p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
+    p.add_argument(
+        "--shield",
+        choices=("model", "on", "off"),
+        default="model",
+        help="depth safety filter: as the checkpoint says (default), forced on (default settings) or off",
+    )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -41,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from quadnav_onboard.shield import shield_config_from_meta
     from sim_harness.rl.evaluate import (
         env_config_for_policy,
         evaluate,
@@ -62,7 +70,11 @@ def run(args: argparse.Namespace) -> int:
             else [paper_world_path(i) for i in range(1, 11)]
         )
         worlds = [load_world(p) for p in paths]
-        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps)
+        shield = None
+        if args.shield != "model":
+            base = shield_config_from_meta(policy.checkpoint.meta)
+            shield = dataclasses.replace(base, enabled=args.shield == "on")
+        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
     except (CheckpointError, WorldError, ConfigError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2
@@ -91,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
             "trials": args.trials,
             "seed": args.seed,
             "max_steps": args.max_steps,
+            "shield": dataclasses.asdict(env_cfg.shield),
             "worlds": [str(p) for p in paths],
             "rows": [r.to_dict() for r in rows],
             "summary": summary,

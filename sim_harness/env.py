@@ -31,6 +31,14 @@ from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.primitives import bezier_position, bezier_velocity
 from quadnav_onboard.reward import RewardParams, reward
+from quadnav_onboard.shield import (
+    PointMemory,
+    ShieldConfig,
+    allowed_actions,
+    primitive_clearance,
+    primitive_samples,
+    primitive_seen_free,
+)
 from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_network_inputs
@@ -72,6 +80,9 @@ class EnvConfig:
     """Kinematic quad: tracking response, limits, collision radius."""
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     """Depth-to-input conversion, shared with the flight daemon."""
+    shield: ShieldConfig = field(default_factory=ShieldConfig)
+    """Depth safety filter (off = the paper): when on, ``allowed`` holds the primitives it lets
+    the planner choose at the next decision."""
 
 
 def _outcome_code(collided: NDArray, deviated: NDArray, goal: NDArray, timeout: NDArray) -> NDArray[np.int8]:
@@ -127,6 +138,11 @@ class VecQuadNavEnv:
         self.done = np.zeros(n, dtype=bool)
         self.depth = np.ones((n, kd, 32, 32), dtype=np.float32)
         self.rel = np.zeros((n, kp, 3), dtype=np.float32)
+        self.memory = PointMemory(n, config.shield) if config.shield.enabled else None
+        self.clearance_m = np.full((n, self.prims.n_actions), config.shield.search_radius_m)
+        """Shield clearance (m) of every primitive at the next decision (cap if the shield is off)."""
+        self.allowed = np.ones((n, self.prims.n_actions), dtype=bool)
+        """Primitives the shield allows at the next decision (all if it is off)."""
 
     # -- per-world helpers ---------------------------------------------------------------------
     def _groups(self, mask: NDArray[np.bool_]) -> list[tuple[World, NDArray[np.int64]]]:
@@ -152,6 +168,26 @@ class VecQuadNavEnv:
         depth = render_network_inputs(world, self.pos_m[ids], yaw, self.config.preprocess)
         rel = world.path.relative_state(sp, self.pos_m[ids], yaw).astype(np.float32)
         return depth.astype(np.float32, copy=False), rel
+
+    def _update_shield(self, ids: NDArray[np.int64], depth: NDArray, yaw: NDArray, new: bool) -> None:
+        """Remember the new inputs of ``ids`` and re-check every primitive for the next decision."""
+        if self.memory is None:
+            return
+        if new:
+            self.memory.clear(ids)
+        self.memory.add(ids, depth, self.pos_m[ids], yaw)
+        cfg = self.config.shield
+        samples = primitive_samples(
+            self.prims, self.cmd_pos_m[ids], self.cmd_vel_m_s[ids], yaw, cfg,
+            pos_world_m=self.pos_m[ids], vel_world_m_s=self.vel_m_s[ids],
+        )
+        self.clearance_m[ids] = primitive_clearance(samples, self.memory.points[ids], cfg)
+        seen = None
+        if cfg.require_seen:
+            seen = primitive_seen_free(
+                samples, self.memory.depth_m[ids], self.memory.pose[ids], self.pos_m[ids], cfg
+            )
+        self.allowed[ids] = allowed_actions(self.clearance_m[ids], cfg, seen)
 
     def _stop_at_contact(
         self, world: World, ids: NDArray[np.int64], collided: NDArray, trail: NDArray
@@ -212,6 +248,7 @@ class VecQuadNavEnv:
             depth, rel = self._observe(sel, world, t["yaw"], t["sp"])
             self.depth[sel] = depth[:, None]
             self.rel[sel] = rel[:, None]
+            self._update_shield(sel, depth, t["yaw"], new=True)
         return self.depth, self.rel
 
     def step(self, actions: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, dict[str, Any]]:
@@ -275,6 +312,7 @@ class VecQuadNavEnv:
             depth, rel = self._observe(ids, world, t["yaw"], t["sp"])
             self.depth[ids] = np.concatenate([self.depth[ids, 1:], depth[:, None]], axis=1)
             self.rel[ids] = np.concatenate([self.rel[ids, 1:], rel[:, None]], axis=1)
+            self._update_shield(ids, depth, t["yaw"], new=False)
         self.episode_return[run] += rew[run]
         terminated = run & (code >= 1) & (code <= 3)
         truncated = run & (code == 4)
@@ -293,6 +331,7 @@ class VecQuadNavEnv:
         if self.autoreset:
             info["final_depth"] = self.depth.copy()
             info["final_rel_pos"] = self.rel.copy()
+            info["final_allowed"] = self.allowed.copy()
             if ended.any():
                 self.reset(ended)
         return self.depth, self.rel, rew, terminated, truncated, info

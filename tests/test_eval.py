@@ -22,7 +22,7 @@ def _world(name: str, obstacles: list) -> object:
     )
 
 
-def _forward(depth: np.ndarray, rel: np.ndarray) -> np.ndarray:
+def _forward(depth: np.ndarray, rel: np.ndarray, allowed: np.ndarray) -> np.ndarray:
     return np.full(len(depth), FORWARD)
 
 
@@ -51,9 +51,9 @@ def test_summary_separates_safe_failures_from_crashes() -> None:
 
 def test_sideways_policy_deviates_and_hovering_times_out() -> None:
     free = _world("free", [])
-    rows = evaluate(lambda d, r: np.full(len(d), LEFT), [free], 2, 0, EnvConfig(max_steps=30))
+    rows = evaluate(lambda d, r, a: np.full(len(d), LEFT), [free], 2, 0, EnvConfig(max_steps=30))
     assert {r.outcome for r in rows} == {"deviation"}
-    rows = evaluate(lambda d, r: np.full(len(d), 13), [free], 2, 0, EnvConfig(max_steps=7))
+    rows = evaluate(lambda d, r, a: np.full(len(d), 13), [free], 2, 0, EnvConfig(max_steps=7))
     assert {r.outcome for r in rows} == {"timeout"} and all(r.time_s == 7.0 for r in rows)
 
 

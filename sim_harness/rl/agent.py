@@ -48,11 +48,16 @@ class DQNAgent:
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
         self.n_updates = 0
 
-    def greedy(self, depth: NDArray[np.float32], rel: NDArray[np.float32]) -> NDArray[np.int64]:
-        """Arg-max actions (B,) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3)."""
+    def greedy(
+        self, depth: NDArray[np.float32], rel: NDArray[np.float32], allowed: NDArray[np.bool_] | None = None
+    ) -> NDArray[np.int64]:
+        """Arg-max actions (B,) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3); over the
+        ``allowed`` actions (B, n_actions) only, when given (the shield's verdict)."""
         with torch.inference_mode():
-            q = self.q(self._t(depth), self._t(rel))
-        return q.argmax(dim=1).cpu().numpy().astype(np.int64)
+            q = self.q(self._t(depth), self._t(rel)).cpu().numpy()
+        if allowed is not None:
+            q = np.where(allowed, q, -np.inf)
+        return q.argmax(axis=1).astype(np.int64)
 
     def _t(self, a: NDArray) -> torch.Tensor:
         return torch.as_tensor(a).to(self.device, non_blocking=True)
@@ -63,28 +68,46 @@ class DQNAgent:
         rel: NDArray[np.float32],
         epsilon: NDArray | float,
         rng: np.random.Generator,
+        allowed: NDArray[np.bool_] | None = None,
     ) -> NDArray[np.int64]:
-        """ε-greedy actions (B,); ``epsilon`` scalar or per row; randomness from ``rng``."""
+        """ε-greedy actions (B,); ``epsilon`` scalar or per row; randomness from ``rng``. With
+        ``allowed`` (B, n_actions) both the greedy and the random choice keep to allowed actions."""
         n = depth.shape[0]
-        actions = self.greedy(depth, rel)
+        actions = self.greedy(depth, rel, allowed)
         explore = rng.random(n) < np.broadcast_to(np.asarray(epsilon, dtype=np.float64), (n,))
-        random_actions = rng.integers(0, self.q.config.n_actions, size=n)
+        if allowed is None:
+            random_actions = rng.integers(0, self.q.config.n_actions, size=n)
+        else:  # uniform over the allowed actions of each row
+            random_actions = np.argmax(rng.random(allowed.shape) * allowed, axis=1)
         return np.where(explore, random_actions, actions).astype(np.int64)
+
+    def td_target(self, batch: Batch, gamma: float) -> torch.Tensor:
+        """Bootstrapped targets (B,): ``r + γ^n (1 - done) max_a' Q_target(s', a')``, the max over
+        the actions the shield allowed in s' (Double DQN: the online net picks a')."""
+        next_depth, next_rel = self._t(batch.next_depth), self._t(batch.next_rel)
+        reward, done = self._t(batch.reward), self._t(batch.done)
+        discount = self._t(np.power(gamma, batch.n, dtype=np.float32))
+        with torch.no_grad():
+            q_next_target = self.target(next_depth, next_rel)
+            mask = None if batch.next_allowed is None else self._t(batch.next_allowed)
+            if mask is not None:
+                q_next_target = q_next_target.masked_fill(~mask, -torch.inf)
+            if self.config.double_dqn:
+                q_next_online = self.q(next_depth, next_rel)
+                if mask is not None:
+                    q_next_online = q_next_online.masked_fill(~mask, -torch.inf)
+                a_next = q_next_online.argmax(dim=1, keepdim=True)
+                v_next = q_next_target.gather(1, a_next).squeeze(1)
+            else:
+                v_next = q_next_target.max(dim=1).values
+            v_next = torch.where(done > 0, torch.zeros_like(v_next), v_next)  # never -inf * 0
+            return reward + discount * (1.0 - done) * v_next
 
     def update(self, batch: Batch, gamma: float) -> float:
         """One gradient step of the Huber TD loss; returns the loss value."""
         depth, rel = self._t(batch.depth), self._t(batch.rel)
-        next_depth, next_rel = self._t(batch.next_depth), self._t(batch.next_rel)
-        action, reward, done = self._t(batch.action), self._t(batch.reward), self._t(batch.done)
-        discount = self._t(np.power(gamma, batch.n, dtype=np.float32))
-        with torch.no_grad():
-            q_next_target = self.target(next_depth, next_rel)
-            if self.config.double_dqn:
-                a_next = self.q(next_depth, next_rel).argmax(dim=1, keepdim=True)
-                v_next = q_next_target.gather(1, a_next).squeeze(1)
-            else:
-                v_next = q_next_target.max(dim=1).values
-            target = reward + discount * (1.0 - done) * v_next
+        action = self._t(batch.action)
+        target = self.td_target(batch, gamma)
         q_sa = self.q(depth, rel).gather(1, action[:, None]).squeeze(1)
         loss = F.smooth_l1_loss(q_sa, target)
         self.optimizer.zero_grad(set_to_none=True)

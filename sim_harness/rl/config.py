@@ -95,6 +95,14 @@ class TrainConfig:
     """Depth frames stacked as input (1 = the paper)."""
     position_history: Annotated[int, pydantic.Field(ge=1)] = 1
     """Relative positions stacked as input (1 = the paper)."""
+    shield: bool = False
+    """Depth safety filter in the loop (beyond the paper): acting (greedy and random) and the TD
+    target keep to the primitives it allows; the checkpoint records it, so eval and the daemon
+    fly with it too (quadnav_onboard.shield)."""
+    shield_clearance_m: Annotated[float, pydantic.Field(gt=0)] = 0.55
+    """Least clearance (m) from a primitive's predicted path to remembered depth points."""
+    shield_memory_steps: Annotated[int, pydantic.Field(ge=1)] = 4
+    """Decisions whose depth points the shield remembers."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1)] = 100
     """Episodes between checkpoints (model + resumable training state)."""
     torch_threads: Annotated[int, pydantic.Field(ge=1)] = 1

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from quadnav_onboard.config import PrimitiveConfig, parse_config
 from quadnav_onboard.policy import Policy
+from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.world import World
 
@@ -26,12 +27,14 @@ __all__ = [
     "env_config_for_policy",
     "evaluate",
     "format_table",
+    "masked_argmax",
     "policy_greedy_fn",
     "summarize",
 ]
 
-GreedyFn = Callable[[NDArray[np.float32], NDArray[np.float32]], NDArray[np.int64]]
-"""Batched policy: depth (B, k_d, 32, 32), rel (B, k_p, 3) -> actions (B,)."""
+GreedyFn = Callable[[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]], NDArray[np.int64]]
+"""Batched policy: depth (B, k_d, 32, 32), rel (B, k_p, 3), allowed (B, n_actions) -> actions (B,).
+``allowed`` is the shield's verdict (all True when the shield is off)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,10 +62,16 @@ class EvalRow:
         return d
 
 
-def env_config_for_policy(policy: Policy, max_steps: int = 120, start_jitter_m: float = 0.5) -> EnvConfig:
-    """The env the policy was trained for: its history lengths, primitives and preprocessing."""
+def env_config_for_policy(
+    policy: Policy, max_steps: int = 120, start_jitter_m: float = 0.5, shield: ShieldConfig | None = None
+) -> EnvConfig:
+    """The env the policy was trained for: its history lengths, primitives, preprocessing and
+    shield (``shield`` overrides the checkpoint's)."""
     prims = parse_config(PrimitiveConfig, policy.checkpoint.primitives, source="checkpoint.primitives")
+    if shield is None:
+        shield = shield_config_from_meta(policy.checkpoint.meta)
     return EnvConfig(
+        shield=shield,
         max_steps=max_steps,
         start_jitter_m=start_jitter_m,
         depth_history=policy.depth_history,
@@ -72,8 +81,15 @@ def env_config_for_policy(policy: Policy, max_steps: int = 120, start_jitter_m: 
     )
 
 
+def masked_argmax(q: NDArray, allowed: NDArray[np.bool_] | None) -> NDArray[np.int64]:
+    """Arg-max over the allowed actions of each row (all actions where ``allowed`` is None)."""
+    if allowed is not None:
+        q = np.where(allowed, q, -np.inf)
+    return np.argmax(q, axis=-1).astype(np.int64)
+
+
 def policy_greedy_fn(policy: Policy) -> GreedyFn:
-    return lambda depth, rel: np.argmax(policy.q_values_batch(depth, rel), axis=1).astype(np.int64)
+    return lambda depth, rel, allowed: masked_argmax(policy.q_values_batch(depth, rel), allowed)
 
 
 def evaluate(
@@ -92,7 +108,7 @@ def evaluate(
         outcome = np.full(trials, None, dtype=object)
         progress = np.zeros(trials)
         while not env.done.all():
-            depth, rel, _, term, trunc, info = env.step(act(depth, rel))
+            depth, rel, _, term, trunc, info = env.step(act(depth, rel, env.allowed))
             ended = term | trunc
             outcome[ended] = info["outcome"][ended]
             progress[ended] = info["progress_m"][ended]

@@ -38,13 +38,21 @@ class Batch:
     """(B,) number of environment steps the transition spans (bootstrap with γ**n)."""
     index: NDArray[np.int64]
     """(B,) slots in the buffer."""
+    next_allowed: NDArray[np.bool_] | None = None
+    """(B, n_actions) actions the shield allowed in the next state (the target's max runs over
+    them); None when every action was allowed."""
 
 
 class ReplayBuffer:
     """Uniform replay over the last ``capacity`` transitions."""
 
     def __init__(
-        self, capacity: int, depth_shape: tuple[int, ...], rel_shape: tuple[int, ...], seed: int
+        self,
+        capacity: int,
+        depth_shape: tuple[int, ...],
+        rel_shape: tuple[int, ...],
+        seed: int,
+        n_actions: int = 18,
     ) -> None:
         if capacity < 1:
             raise ValueError(f"capacity must be >= 1, got {capacity}")
@@ -57,6 +65,8 @@ class ReplayBuffer:
         self.reward = np.zeros(capacity, dtype=np.float32)
         self.done = np.zeros(capacity, dtype=np.float32)
         self.n = np.ones(capacity, dtype=np.float32)
+        self.next_allowed = np.ones((capacity, n_actions), dtype=bool)
+        self._masked = False
         self.rng = np.random.default_rng(seed)
         self._next = 0
         self._size = 0
@@ -74,8 +84,10 @@ class ReplayBuffer:
         next_rel: NDArray,
         done: NDArray,
         n: NDArray | None = None,
+        next_allowed: NDArray | None = None,
     ) -> None:
-        """Store a batch of M transitions (leading axis M on every array)."""
+        """Store a batch of M transitions (leading axis M on every array); ``next_allowed``
+        (M, n_actions) defaults to every action allowed."""
         m = len(action)
         if m == 0:
             return
@@ -90,6 +102,8 @@ class ReplayBuffer:
         self.next_rel[idx] = next_rel
         self.done[idx] = done
         self.n[idx] = 1.0 if n is None else n
+        self.next_allowed[idx] = True if next_allowed is None else next_allowed
+        self._masked |= next_allowed is not None
         self._next = int((self._next + m) % self.capacity)
         self._size = min(self._size + m, self.capacity)
 
@@ -108,6 +122,7 @@ class ReplayBuffer:
             done=self.done[idx],
             n=self.n[idx],
             index=idx,
+            next_allowed=self.next_allowed[idx] if self._masked else None,
         )
 
 
@@ -137,9 +152,11 @@ class NStepAccumulator:
         terminated: NDArray,
         truncated: NDArray,
         gamma: float,
+        next_allowed: NDArray | None = None,
     ) -> dict[str, NDArray]:
         if self.n_step == 1:  # fast path: every step is a transition
-            return {
+            extra = {} if next_allowed is None else {"next_allowed": np.asarray(next_allowed)}
+            return extra | {
                 "depth": depth,
                 "rel": rel,
                 "action": np.asarray(action),
@@ -158,15 +175,19 @@ class NStepAccumulator:
                 for k, (_, _, _, r) in enumerate(q):
                     ret += (gamma**k) * r
                 d0, r0, a0, _ = q[0]
-                out.append((d0, r0, a0, ret, next_depth[i], next_rel[i], float(terminated[i]), len(q)))
+                nxt = None if next_allowed is None else next_allowed[i]
+                out.append((d0, r0, a0, ret, next_depth[i], next_rel[i], float(terminated[i]), len(q), nxt))
                 q.popleft()
                 if not end:
                     break
         if not out:
             return {}
         cols = list(zip(*out, strict=True))
-        names = ("depth", "rel", "action", "reward", "next_depth", "next_rel", "done", "n")
-        return {
-            name: np.stack(col) if name in ("depth", "rel", "next_depth", "next_rel") else np.asarray(col)
+        names = ("depth", "rel", "action", "reward", "next_depth", "next_rel", "done", "n", "next_allowed")
+        stacked = ("depth", "rel", "next_depth", "next_rel", "next_allowed")
+        batch = {
+            name: np.stack(col) if name in stacked else np.asarray(col)
             for name, col in zip(names, cols, strict=True)
+            if name != "next_allowed" or next_allowed is not None
         }
+        return batch

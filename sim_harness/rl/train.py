@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from quadnav_onboard.checkpoint import save_checkpoint
 from quadnav_onboard.network import NetworkConfig
+from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
@@ -62,6 +63,9 @@ def env_config_for(cfg: TrainConfig) -> EnvConfig:
         random_start_prob=cfg.random_start_prob,
         depth_history=cfg.depth_history,
         position_history=cfg.position_history,
+        shield=ShieldConfig(
+            enabled=cfg.shield, clearance_m=cfg.shield_clearance_m, memory_steps=cfg.shield_memory_steps
+        ),
     )
 
 
@@ -75,7 +79,13 @@ def network_config_for(cfg: TrainConfig) -> NetworkConfig:
 
 
 def _save_model(path: Path, agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, extra: dict) -> Path:
-    meta = {"train_config": cfg.to_dict(), "seed": cfg.seed, "git_commit": git_commit(), **extra}
+    meta = {
+        "train_config": cfg.to_dict(),
+        "seed": cfg.seed,
+        "git_commit": git_commit(),
+        "shield": dataclasses.asdict(env_cfg.shield),
+        **extra,
+    }
     return save_checkpoint(
         path,
         agent.cpu_model(),
@@ -124,7 +134,8 @@ def train(
         device=cfg.device,
     )
     kd, kp = cfg.depth_history, cfg.position_history
-    buffer = ReplayBuffer(cfg.buffer_size, (kd, 32, 32), (kp, 3), seed=cfg.seed + 1)
+    n_actions = env.prims.n_actions
+    buffer = ReplayBuffer(cfg.buffer_size, (kd, 32, 32), (kp, 3), seed=cfg.seed + 1, n_actions=n_actions)
     act_rng = np.random.default_rng(cfg.seed + 2)
     nstep = NStepAccumulator(cfg.n_envs, cfg.n_step)
     eps_of = LinearSchedule(cfg.eps_start, cfg.eps_end, cfg.episodes, cfg.schedule_fraction)
@@ -175,13 +186,16 @@ def train(
     while finished < cfg.episodes:
         gamma = gamma_of(finished)
         eps = np.array([eps_of(e) for e in env_episode])
-        actions = agent.act(depth, rel, eps, act_rng)
+        actions = agent.act(depth, rel, eps, act_rng, env.allowed if cfg.shield else None)
         prev_depth, prev_rel = depth.copy(), rel.copy()
         depth, rel, rew, term, trunc, info = env.step(actions)
         ended = term | trunc
         next_depth = np.where(ended[:, None, None, None], info["final_depth"], depth)
         next_rel = np.where(ended[:, None, None], info["final_rel_pos"], rel)
-        trans = nstep.push(prev_depth, prev_rel, actions, rew, next_depth, next_rel, term, trunc, gamma)
+        next_allowed = np.where(ended[:, None], info["final_allowed"], env.allowed) if cfg.shield else None
+        trans = nstep.push(
+            prev_depth, prev_rel, actions, rew, next_depth, next_rel, term, trunc, gamma, next_allowed
+        )
         if trans:
             buffer.add(**trans)
         env_steps += cfg.n_envs

@@ -1,0 +1,368 @@
+"""A depth safety filter on the motion primitives (beyond the paper).
+
+The paper's agent crashes when it moves sideways or vertically into obstacles that have left the
+camera's field of view: it has no memory of what it saw. The shield gives the planner that memory
+and a veto. Each decision's 32x32 network input is back-projected into 3-D points (pixel centres
+of the D435 pinhole model at the input's depth) and kept, in the world frame, for the last
+``memory_steps`` decisions. Before the DQN's arg-max, every primitive is sampled along its
+commanded Bézier curve (plus a short look-ahead at its end velocity, the overshoot of stopping
+after it) and its clearance is the least distance from those samples to any remembered point. A
+primitive is *allowed* when its clearance is at least ``clearance_m`` (the quad's radius plus a
+margin for tracking error). When none is allowed, the ones with the largest clearance are: the
+shield degrades to "least bad", never to "no answer".
+
+Everything here is a pure function of its inputs (numpy, plus one numba kernel for the distance
+search), shared by the simulator (batched over N vehicles) and the flight daemon (N = 1), so what
+is trained is what flies. Frames: world x forward, y left, z up (m); the heading frame is the
+world rotated by the heading yaw; depth inputs are float32 (32, 32) in [0, 1] (depth / max range,
+see :mod:`quadnav_onboard.preprocess`), row 0 up, column 0 left.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from quadnav_onboard.frames import body_to_world, world_to_body
+from quadnav_onboard.primitives import PrimitiveSet, bezier_position, bezier_velocity
+
+__all__ = [
+    "PointMemory",
+    "ShieldConfig",
+    "allowed_actions",
+    "depth_points_heading",
+    "primitive_clearance",
+    "primitive_samples",
+    "primitive_seen_free",
+    "shield_config_from_meta",
+]
+
+INPUT_SIZE = 32
+
+
+@dataclass(frozen=True)
+class ShieldConfig:
+    """The depth safety filter; off by default (the paper has none)."""
+
+    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+
+    enabled: bool = False
+    """Veto primitives whose swept path comes closer than ``clearance_m`` to a seen obstacle."""
+    clearance_m: float = 0.55
+    """Least allowed distance (m) from the primitive's path to any remembered depth point
+    (the quad's 0.3 m radius plus a margin for tracking error and depth noise)."""
+    memory_steps: int = 4
+    """Decisions whose depth points are remembered (the current one included)."""
+    samples: int = 8
+    """Points sampled along each primitive (its start excluded)."""
+    lookahead_s: float = 0.3
+    """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot)."""
+    min_travel_m: float = 0.3
+    """A decision taken less than this far (m) from the last remembered one replaces it instead of
+    pushing the oldest out: hovering in place does not forget what was seen on the way."""
+    track_omega_rad_s: float = 6.0
+    """Natural frequency (rad/s) of the position loop assumed when predicting the flown path."""
+    track_accel_m_s2: float = 4.0
+    """Acceleration limit (m/s^2) of that position loop (PX4's MPC_ACC_HOR_MAX-like)."""
+    track_dt_s: float = 0.05
+    """Integration step (s) of the prediction."""
+    require_seen: bool = True
+    """Also veto primitives that fly into space no remembered view saw to be free (beside or below
+    the camera's field of view, behind obstacles)."""
+    seen_margin_m: float = 0.3
+    """A sample counts as seen free when it lies this far (m) in front of the measured depth."""
+    near_m: float = 0.4
+    """Samples within this distance (m) of the vehicle's current position count as free."""
+    hfov_deg: float = 87.0
+    """Horizontal field of view (deg) of the depth camera the inputs come from (D435)."""
+    vfov_deg: float = 58.0
+    """Vertical field of view (deg) of the depth camera."""
+    max_range_m: float = 10.0
+    """Depth (m) of an input value of 1.0 (the preprocessing's max range): 'nothing seen'."""
+    search_radius_m: float = 1.5
+    """Clearances are capped at this distance (m); points farther from every sample are ignored."""
+
+    def __post_init__(self) -> None:
+        if not self.clearance_m > 0 or not self.search_radius_m > self.clearance_m:
+            raise ValueError("need 0 < clearance_m < search_radius_m")
+        if self.memory_steps < 1 or self.samples < 1 or self.lookahead_s < 0:
+            raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
+        if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
+            raise ValueError("fields of view must be in (0, 180) deg")
+
+
+def shield_config_from_meta(meta: dict, source: str = "checkpoint.meta.shield") -> ShieldConfig:
+    """The shield a checkpoint was trained and evaluated with (``meta["shield"]``; off if absent)."""
+    from quadnav_onboard.config import parse_config
+
+    raw = meta.get("shield")
+    return ShieldConfig() if raw is None else parse_config(ShieldConfig, raw, source=source)
+
+
+def _pixel_rays(cfg: ShieldConfig) -> NDArray[np.float64]:
+    """Heading-frame rays (1024, 3) through the input's pixel centres, x component 1."""
+    n = INPUT_SIZE
+    ty = math.tan(math.radians(cfg.hfov_deg) / 2) * (1.0 - 2.0 * (np.arange(n) + 0.5) / n)
+    tz = math.tan(math.radians(cfg.vfov_deg) / 2) * (1.0 - 2.0 * (np.arange(n) + 0.5) / n)
+    rays = np.empty((n, n, 3))
+    rays[..., 0] = 1.0
+    rays[..., 1] = ty[None, :]
+    rays[..., 2] = tz[:, None]
+    return rays.reshape(-1, 3)
+
+
+def depth_points_heading(depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig()) -> NDArray[np.float32]:
+    """Back-project network inputs (..., 32, 32) to heading-frame points (..., 1024, 3), metres,
+    relative to the camera; pixels that saw nothing (value >= 0.999) are NaN."""
+    d = np.asarray(depth_input, dtype=np.float32)
+    flat = d.reshape(*d.shape[:-2], INPUT_SIZE * INPUT_SIZE)
+    z = (flat * np.float32(cfg.max_range_m))[..., None]
+    pts = z * _pixel_rays(cfg).astype(np.float32)
+    return np.where((flat >= np.float32(0.999))[..., None], np.float32(np.nan), pts).astype(np.float32)
+
+
+class PointMemory:
+    """What N vehicles saw at their last ``memory_steps`` decisions (a ring per vehicle).
+
+    ``points``: float32 (N, memory_steps * 1024, 3), world frame, m, NaN where nothing is
+    remembered (the obstacles). ``depth_m``: float32 (N, memory_steps, 32, 32) z-depth (m) of each
+    remembered view, ``pose``: (N, memory_steps, 4) camera position (world, m) and heading yaw (rad)
+    of each view, NaN for empty slots (the space seen to be free). The newest view is last.
+    """
+
+    def __init__(self, n: int, cfg: ShieldConfig = ShieldConfig()) -> None:
+        self.cfg = cfg
+        k = cfg.memory_steps
+        self.points = np.full((n, k * INPUT_SIZE * INPUT_SIZE, 3), np.nan, dtype=np.float32)
+        self.depth_m = np.zeros((n, k, INPUT_SIZE, INPUT_SIZE), dtype=np.float32)
+        self.pose = np.full((n, k, 4), np.nan)
+
+    def clear(self, ids: ArrayLike | None = None) -> None:
+        """Forget everything (of vehicles ``ids``, default all): a new episode or flight."""
+        sel = slice(None) if ids is None else np.asarray(ids)
+        self.points[sel] = np.nan
+        self.pose[sel] = np.nan
+
+    def add(self, ids: ArrayLike, depth_input: ArrayLike, pos_world_m: ArrayLike, yaw_rad: ArrayLike) -> None:
+        """Remember inputs (M, 32, 32) seen by vehicles ``ids`` (M,) from ``pos_world_m`` (M, 3) at
+        heading ``yaw_rad`` (M,). The oldest view is dropped, unless the vehicle is within
+        ``min_travel_m`` of its newest remembered view: then that one is replaced."""
+        ids = np.asarray(ids)
+        pos = np.asarray(pos_world_m, dtype=np.float64)
+        yaw = np.asarray(yaw_rad, dtype=np.float64)
+        depth = np.asarray(depth_input, dtype=np.float32)
+        pts_w = body_to_world(depth_points_heading(depth, self.cfg).astype(np.float64), yaw[:, None])
+        pts_w += pos[:, None, :]
+        k = INPUT_SIZE * INPUT_SIZE
+        moved = ~(np.linalg.norm(pos - self.pose[ids, -1, :3], axis=-1) < self.cfg.min_travel_m)  # NaN: moved
+        mem, dep, pose = self.points[ids], self.depth_m[ids], self.pose[ids]
+        mem[moved, :-k] = mem[moved, k:]
+        dep[moved, :-1] = dep[moved, 1:]
+        pose[moved, :-1] = pose[moved, 1:]
+        mem[:, -k:] = pts_w
+        dep[:, -1] = depth * np.float32(self.cfg.max_range_m)
+        pose[:, -1, :3] = pos
+        pose[:, -1, 3] = yaw
+        self.points[ids], self.depth_m[ids], self.pose[ids] = mem, dep, pose
+
+
+def primitive_samples(
+    prims: PrimitiveSet,
+    start_world_m: ArrayLike,
+    start_vel_world_m_s: ArrayLike,
+    yaw_rad: ArrayLike,
+    cfg: ShieldConfig = ShieldConfig(),
+    pos_world_m: ArrayLike | None = None,
+    vel_world_m_s: ArrayLike | None = None,
+) -> NDArray[np.float64]:
+    """World points (N, n_actions, samples + 1, 3) along every primitive of N vehicles.
+
+    Each primitive starts at ``start_world_m`` (N, 3) (the previous commanded end point) with
+    ``start_vel_world_m_s`` (N, 3), in the heading frame of ``yaw_rad`` (N,), exactly as it will
+    be commanded. With the vehicle's ``pos_world_m`` and ``vel_world_m_s`` (N, 3) the samples are
+    where a position controller (critically damped, ``track_omega_rad_s``, acceleration limited to
+    ``track_accel_m_s2``) following the primitive will *be*, not where it is told to be: sharp
+    reversals overshoot. The last sample looks ``lookahead_s`` further on at the end velocity.
+    """
+    start = np.asarray(start_world_m, dtype=np.float64)
+    yaw = np.asarray(yaw_rad, dtype=np.float64)
+    n, a = start.shape[0], prims.n_actions
+    v0_h = world_to_body(np.asarray(start_vel_world_m_s, dtype=np.float64), yaw)  # (N, 3)
+    ctrl = prims.control_points(np.broadcast_to(np.arange(a), (n, a)), v0_h[:, None, :])  # (N, A, 4, 3)
+    per = max(1, int(np.ceil(prims.duration_s / cfg.track_dt_s / cfg.samples)))
+    k_total = per * cfg.samples
+    u = (np.arange(1, k_total + 1) / k_total)[:, None, None]  # (K, 1, 1)
+    cmd_h = np.moveaxis(bezier_position(ctrl[None], u), 0, 2)  # (N, A, K, 3)
+    cmd = start[:, None, None, :] + body_to_world(cmd_h, yaw[:, None, None])
+    if pos_world_m is None:
+        along = cmd[:, :, per - 1 :: per]
+        v_end = body_to_world(np.broadcast_to(prims.end_velocity_m_s(np.arange(a)), (n, a, 3)), yaw[:, None])
+    else:
+        vcmd_h = np.moveaxis(bezier_velocity(ctrl[None], u, prims.duration_s), 0, 2)
+        vcmd = body_to_world(vcmd_h, yaw[:, None, None])
+        along, v_end = _predict_tracking(
+            np.asarray(pos_world_m, dtype=np.float64),
+            np.zeros(start.shape) if vel_world_m_s is None else np.asarray(vel_world_m_s, dtype=np.float64),
+            cmd,
+            vcmd,
+            prims.duration_s / k_total,
+            per,
+            cfg,
+        )
+    tail = along[:, :, -1] + v_end * cfg.lookahead_s
+    return np.concatenate([along, tail[:, :, None]], axis=2)
+
+
+def _predict_tracking(
+    pos: NDArray, vel: NDArray, cmd: NDArray, vcmd: NDArray, dt: float, every: int, cfg: ShieldConfig
+) -> tuple[NDArray, NDArray]:
+    """Positions (N, A, K / every, 3) and final velocity (N, A, 3) of a critically damped,
+    acceleration-limited position loop following ``cmd``/``vcmd`` (N, A, K, 3) from (N, 3)."""
+    w, amax = cfg.track_omega_rad_s, cfg.track_accel_m_s2
+    p = np.repeat(pos[:, None, :], cmd.shape[1], axis=1)
+    v = np.repeat(vel[:, None, :], cmd.shape[1], axis=1)
+    out = np.empty((cmd.shape[0], cmd.shape[1], cmd.shape[2] // every, 3))
+    for k in range(cmd.shape[2]):
+        acc = w * w * (cmd[:, :, k] - p) + 2.0 * w * (vcmd[:, :, k] - v)
+        norm = np.sqrt((acc * acc).sum(-1, keepdims=True))
+        acc *= np.minimum(1.0, amax / np.maximum(norm, 1e-12))
+        v = v + acc * dt
+        p = p + v * dt
+        if (k + 1) % every == 0:
+            out[:, :, (k + 1) // every - 1] = p
+    return out, v
+
+
+@numba.njit(cache=True, nogil=True)
+def _min_distance(samples: NDArray, points: NDArray, cap: float, out: NDArray) -> None:  # pragma: no cover
+    n, a, s = samples.shape[0], samples.shape[1], samples.shape[2]
+    p = points.shape[1]
+    for i in range(n):
+        lo0 = lo1 = lo2 = np.inf
+        hi0 = hi1 = hi2 = -np.inf
+        for j in range(a):
+            for k in range(s):
+                lo0 = min(lo0, samples[i, j, k, 0])
+                hi0 = max(hi0, samples[i, j, k, 0])
+                lo1 = min(lo1, samples[i, j, k, 1])
+                hi1 = max(hi1, samples[i, j, k, 1])
+                lo2 = min(lo2, samples[i, j, k, 2])
+                hi2 = max(hi2, samples[i, j, k, 2])
+            out[i, j] = cap * cap
+        for q in range(p):
+            x, y, z = points[i, q, 0], points[i, q, 1], points[i, q, 2]
+            if not (x >= lo0 - cap and x <= hi0 + cap):  # also skips NaN
+                continue
+            if not (lo1 - cap <= y <= hi1 + cap and lo2 - cap <= z <= hi2 + cap):
+                continue
+            for j in range(a):
+                best = out[i, j]
+                for k in range(s):
+                    dx = samples[i, j, k, 0] - x
+                    dy = samples[i, j, k, 1] - y
+                    dz = samples[i, j, k, 2] - z
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 < best:
+                        best = d2
+                out[i, j] = best
+        for j in range(a):
+            out[i, j] = math.sqrt(out[i, j])
+
+
+def primitive_clearance(
+    samples_world_m: ArrayLike, points_world_m: ArrayLike, cfg: ShieldConfig = ShieldConfig()
+) -> NDArray[np.float64]:
+    """Least distance (m, capped at ``search_radius_m``) from each primitive's samples
+    (N, A, S, 3) to the points (N, P, 3) (NaN rows ignored); shape (N, A)."""
+    s = np.ascontiguousarray(samples_world_m, dtype=np.float64)
+    p = np.ascontiguousarray(points_world_m, dtype=np.float32)
+    out = np.empty(s.shape[:2], dtype=np.float64)
+    _min_distance(s, p, float(cfg.search_radius_m), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _seen_free(
+    samples: NDArray, depth_m: NDArray, pose: NDArray, pos: NDArray, tan_h: float, tan_v: float,
+    margin: float, near: float, out: NDArray,
+) -> None:  # pragma: no cover
+    n, a, s = samples.shape[0], samples.shape[1], samples.shape[2]
+    k, res = depth_m.shape[1], depth_m.shape[2]
+    for i in range(n):
+        for j in range(a):
+            ok = True
+            for q in range(s):
+                x, y, z = samples[i, j, q, 0], samples[i, j, q, 1], samples[i, j, q, 2]
+                dx0, dy0, dz0 = x - pos[i, 0], y - pos[i, 1], z - pos[i, 2]
+                if dx0 * dx0 + dy0 * dy0 + dz0 * dz0 <= near * near:
+                    continue  # where the vehicle is now is free
+                seen = False
+                for f in range(k):
+                    if pose[i, f, 0] != pose[i, f, 0]:
+                        continue  # empty slot
+                    c, sn = math.cos(pose[i, f, 3]), math.sin(pose[i, f, 3])
+                    wx, wy, wz = x - pose[i, f, 0], y - pose[i, f, 1], z - pose[i, f, 2]
+                    fx = c * wx + sn * wy
+                    if fx <= 0.0:
+                        continue
+                    ty = (-sn * wx + c * wy) / fx
+                    tz = wz / fx
+                    if abs(ty) >= tan_h or abs(tz) >= tan_v:
+                        continue
+                    col = min(res - 1, int((1.0 - ty / tan_h) * 0.5 * res))
+                    row = min(res - 1, int((1.0 - tz / tan_v) * 0.5 * res))
+                    if fx + margin <= depth_m[i, f, row, col]:
+                        seen = True
+                        break
+                if not seen:
+                    ok = False
+                    break
+            out[i, j] = ok
+
+
+def primitive_seen_free(
+    samples_world_m: ArrayLike,
+    view_depth_m: ArrayLike,
+    view_pose: ArrayLike,
+    pos_world_m: ArrayLike,
+    cfg: ShieldConfig = ShieldConfig(),
+) -> NDArray[np.bool_]:
+    """(N, A): every sample of the primitive lies where some remembered view saw free space (in its
+    field of view, ``seen_margin_m`` in front of what it measured), or within ``near_m`` of where
+    the vehicle is now. Unknown space (beside or below the camera, behind an obstacle) is not free.
+    ``view_depth_m`` (N, K, 32, 32) and ``view_pose`` (N, K, 4) are a :class:`PointMemory`'s."""
+    s = np.ascontiguousarray(samples_world_m, dtype=np.float64)
+    out = np.empty(s.shape[:2], dtype=np.bool_)
+    _seen_free(
+        s,
+        np.ascontiguousarray(view_depth_m, dtype=np.float32),
+        np.ascontiguousarray(view_pose, dtype=np.float64),
+        np.ascontiguousarray(pos_world_m, dtype=np.float64),
+        math.tan(math.radians(cfg.hfov_deg) / 2),
+        math.tan(math.radians(cfg.vfov_deg) / 2),
+        cfg.seen_margin_m,
+        cfg.near_m,
+        out,
+    )
+    return out
+
+
+def allowed_actions(
+    clearance_m: ArrayLike, cfg: ShieldConfig = ShieldConfig(), seen_free: ArrayLike | None = None
+) -> NDArray[np.bool_]:
+    """Primitives (N, A) whose clearance is at least ``clearance_m`` (and, with ``seen_free``,
+    whose path was seen to be free); where none is, the ones of largest clearance (least bad).
+    All allowed when the shield is disabled."""
+    c = np.asarray(clearance_m, dtype=np.float64)
+    if not cfg.enabled:
+        return np.ones(c.shape, dtype=bool)
+    ok = c >= cfg.clearance_m
+    if seen_free is not None:
+        ok &= np.asarray(seen_free, dtype=bool)
+    none = ~ok.any(axis=-1, keepdims=True)
+    best = c >= c.max(axis=-1, keepdims=True) - 1e-9
+    return np.where(none, best, ok)

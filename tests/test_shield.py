@@ -1,0 +1,120 @@
+"""The depth safety filter: back-projection, memory, predicted paths and the allowed set."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
+from quadnav_onboard.shield import (
+    PointMemory,
+    ShieldConfig,
+    allowed_actions,
+    depth_points_heading,
+    primitive_clearance,
+    primitive_samples,
+    shield_config_from_meta,
+)
+
+ON = ShieldConfig(enabled=True)
+PRIMS = PrimitiveSet()
+FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
+HOVER = DEFAULT_DIRECTIONS.index((0, 0, 0))
+
+
+def wall_input(distance_m: float, cfg: ShieldConfig = ON) -> np.ndarray:
+    """A 32x32 network input of a flat wall facing the camera at ``distance_m`` (z-depth)."""
+    return np.full((32, 32), distance_m / cfg.max_range_m, dtype=np.float32)
+
+
+def test_back_projection_puts_a_facing_wall_at_its_depth_and_spans_the_field_of_view():
+    pts = depth_points_heading(wall_input(4.0))
+    assert pts.shape == (1024, 3)
+    np.testing.assert_allclose(pts[:, 0], 4.0, rtol=1e-6)
+    half_w = 4.0 * math.tan(math.radians(ON.hfov_deg) / 2)
+    half_h = 4.0 * math.tan(math.radians(ON.vfov_deg) / 2)
+    assert pts[0, 1] > 0.9 * half_w and pts[0, 2] > 0.9 * half_h  # row 0 up, column 0 left
+    assert pts[-1, 1] < -0.9 * half_w and pts[-1, 2] < -0.9 * half_h
+    assert np.all(np.abs(pts[:, 1]) < half_w) and np.all(np.abs(pts[:, 2]) < half_h)
+
+
+def test_pixels_that_saw_nothing_give_no_points():
+    d = wall_input(3.0)
+    d[:, :16] = 1.0  # left half: nothing within range
+    pts = depth_points_heading(d).reshape(32, 32, 3)
+    assert np.isnan(pts[:, :16]).all() and np.isfinite(pts[:, 16:]).all()
+
+
+def test_a_wall_ahead_vetoes_forward_primitives_and_keeps_hovering():
+    mem = PointMemory(1, ON)
+    mem.add([0], wall_input(1.2)[None], np.zeros((1, 3)), np.zeros(1))
+    s = primitive_samples(PRIMS, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1), ON, np.zeros((1, 3)))
+    clearance = primitive_clearance(s, mem.points, ON)
+    allowed = allowed_actions(clearance, ON)[0]
+    forward = [i for i, d in enumerate(DEFAULT_DIRECTIONS) if d[0] == 1]
+    assert not allowed[forward].any()
+    assert allowed[HOVER]
+    assert clearance[0, HOVER] == pytest.approx(1.2, abs=0.05)
+
+
+def test_the_wall_is_remembered_after_it_leaves_the_field_of_view():
+    cfg = ShieldConfig(enabled=True, memory_steps=3)
+    mem = PointMemory(1, cfg)
+    mem.add([0], wall_input(3.0, cfg)[None], np.zeros((1, 3)), np.zeros(1))
+    # turned 90 deg left, looking at nothing: the wall (now on the right) is still in memory
+    mem.add([0], np.ones((1, 32, 32), np.float32), np.array([[1.0, 0, 0]]), np.array([math.pi / 2]))
+    pts = mem.points[0][np.isfinite(mem.points[0, :, 0])]
+    assert len(pts) == 1024
+    np.testing.assert_allclose(pts[:, 0], 3.0, rtol=1e-6)
+
+
+def test_hovering_in_place_replaces_the_newest_view_instead_of_forgetting_old_ones():
+    cfg = ShieldConfig(enabled=True, memory_steps=2, min_travel_m=0.3)
+    mem = PointMemory(1, cfg)
+    mem.add([0], wall_input(5.0, cfg)[None], np.zeros((1, 3)), np.zeros(1))  # the old view
+    for _ in range(5):  # hovering 1 m further on: one slot, rewritten
+        mem.add([0], wall_input(2.0, cfg)[None], np.array([[1.0, 0, 0]]), np.zeros(1))
+    xs = np.unique(np.round(mem.points[0, :, 0], 3))
+    assert set(xs.tolist()) == {3.0, 5.0}
+    mem.add([0], wall_input(2.0, cfg)[None], np.array([[2.0, 0, 0]]), np.zeros(1))  # moved: push
+    assert 5.0 not in set(np.unique(np.round(mem.points[0, :, 0], 3)).tolist())
+
+
+def test_predicted_path_overshoots_a_sharp_reversal_that_the_command_does_not():
+    left = DEFAULT_DIRECTIONS.index((1, -1, 0))  # right turn while flying left at 1 m/s
+    v = np.array([[1.0, 1.0, 0.0]])
+    cmd = primitive_samples(PRIMS, np.zeros((1, 3)), v, np.zeros(1), ON)
+    flown = primitive_samples(PRIMS, np.zeros((1, 3)), v, np.zeros(1), ON, np.zeros((1, 3)), v)
+    assert flown[0, left, :, 1].max() > cmd[0, left, :, 1].max() + 0.05
+
+
+def test_samples_follow_the_heading_frame():
+    s = primitive_samples(PRIMS, np.zeros((1, 3)), np.zeros((1, 3)), np.array([math.pi / 2]), ON)
+    end = s[0, FORWARD, ON.samples - 1]  # the primitive's end point: 1 m forward = +y in the world
+    np.testing.assert_allclose(end, [0.0, 1.0, 0.0], atol=1e-9)
+
+
+def test_when_nothing_is_clear_the_least_bad_primitives_are_allowed():
+    c = np.array([[0.1, 0.3, 0.2], [0.9, 0.1, 0.6]])
+    np.testing.assert_array_equal(allowed_actions(c, ON), [[False, True, False], [True, False, True]])
+    assert allowed_actions(c, ShieldConfig(enabled=False)).all()
+
+
+def test_clearance_ignores_missing_points_and_is_capped():
+    s = np.zeros((1, 2, 3, 3))
+    s[0, 1, :, 0] = 1.0
+    pts = np.full((1, 4, 3), np.nan, dtype=np.float32)
+    pts[0, 0] = [1.2, 0.0, 0.0]
+    c = primitive_clearance(s, pts, ON)
+    np.testing.assert_allclose(c, [[1.2, 0.2]], atol=1e-6)
+    assert primitive_clearance(s, np.full((1, 4, 3), np.nan, np.float32), ON).max() == ON.search_radius_m
+
+
+def test_checkpoint_meta_names_the_shield_or_means_none():
+    assert not shield_config_from_meta({}).enabled
+    cfg = shield_config_from_meta({"shield": {"enabled": True, "clearance_m": 0.6}})
+    assert cfg.enabled and cfg.clearance_m == 0.6
+    with pytest.raises(ValueError, match="clearance"):
+        shield_config_from_meta({"shield": {"enabled": True, "clearance": 0.6}})

@@ -1,0 +1,131 @@
+"""The shield in the loop: the env's allowed set, shielded acting, masked TD targets, and a
+shielded checkpoint flying the same shield in evaluation."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from quadnav_onboard.network import NetworkConfig
+from quadnav_onboard.policy import Policy
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from quadnav_onboard.shield import ShieldConfig
+from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.rl.agent import DQNAgent
+from sim_harness.rl.config import TrainConfig
+from sim_harness.rl.evaluate import env_config_for_policy, evaluate, masked_argmax, policy_greedy_fn
+from sim_harness.rl.replay import Batch, NStepAccumulator, ReplayBuffer
+from sim_harness.rl.train import train
+from sim_harness.world import parse_world
+
+FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
+HOVER = DEFAULT_DIRECTIONS.index((0, 0, 0))
+SHIELDED = EnvConfig(start_jitter_m=0.0, max_steps=30, shield=ShieldConfig(enabled=True))
+
+
+def _world(obstacles: list) -> object:
+    return parse_world(
+        {"name": "w", "path": {"waypoints": [[0, 0, 2], [12, 0, 2]]}, "obstacles": obstacles}, "test"
+    )
+
+
+WALL = [{"type": "box", "center": [1.6, 0, 2], "size": [0.2, 20, 20]}]
+
+
+def test_env_vetoes_forward_primitives_into_a_wall():
+    env = VecQuadNavEnv([_world(WALL)], 2, seed=0, config=SHIELDED)
+    env.reset()
+    assert not env.allowed[:, FORWARD].any()
+    assert env.allowed[:, HOVER].all()
+
+
+def test_in_free_space_the_allowed_set_grows_as_the_camera_sees_more():
+    free = VecQuadNavEnv([_world([])], 1, seed=0, config=SHIELDED)
+    free.reset()  # only what the first view covers: straight on, or stay
+    assert set(np.flatnonzero(free.allowed[0]).tolist()) == {FORWARD, HOVER}
+    for _ in range(2):
+        free.step(np.array([FORWARD]))
+    assert free.allowed[0, :9].all()  # two metres on, every forward primitive flies in seen space
+    no_memory = EnvConfig(start_jitter_m=0.0, shield=ShieldConfig(enabled=True, require_seen=False))
+    free = VecQuadNavEnv([_world([])], 1, seed=0, config=no_memory)
+    free.reset()
+    assert free.allowed.all()
+
+
+def test_a_forward_only_policy_under_the_shield_does_not_crash_into_the_wall():
+    def forward_if_allowed(depth, rel, allowed):
+        q = np.where(np.arange(18) == FORWARD, 1.0, 0.0)[None].repeat(len(depth), 0)
+        return masked_argmax(q, allowed)
+
+    rows = evaluate(forward_if_allowed, [_world(WALL)], trials=2, seed=0, env_config=SHIELDED)
+    assert not any(r.crash for r in rows)
+    unshielded = EnvConfig(start_jitter_m=0.0, max_steps=30)
+    assert all(r.crash for r in evaluate(forward_if_allowed, [_world(WALL)], 2, 0, unshielded))
+
+
+def test_shielded_acting_keeps_to_allowed_actions_greedy_and_random():
+    torch.manual_seed(0)
+    agent = DQNAgent(NetworkConfig())
+    rng = np.random.default_rng(0)
+    allowed = np.zeros((64, 18), dtype=bool)
+    allowed[:, 5] = True
+    allowed[::2, 9] = True
+    depth, rel = np.ones((64, 1, 32, 32), np.float32), np.zeros((64, 1, 3), np.float32)
+    for eps in (0.0, 1.0):
+        a = agent.act(depth, rel, eps, rng, allowed)
+        assert allowed[np.arange(64), a].all()
+    assert set(agent.act(depth, rel, 1.0, rng, allowed)[::2].tolist()) == {5, 9}  # random: both
+
+
+def test_td_target_maxes_over_the_allowed_next_actions_only():
+    torch.manual_seed(0)
+    agent = DQNAgent(NetworkConfig())
+    b = 8
+    batch = Batch(
+        depth=np.ones((b, 1, 32, 32), np.float32),
+        rel=np.zeros((b, 1, 3), np.float32),
+        action=np.zeros(b, np.int64),
+        reward=np.zeros(b, np.float32),
+        next_depth=np.random.default_rng(1).random((b, 1, 32, 32), dtype=np.float32),
+        next_rel=np.zeros((b, 1, 3), np.float32),
+        done=np.zeros(b, np.float32),
+        n=np.ones(b, np.float32),
+        index=np.arange(b),
+    )
+    with torch.no_grad():
+        q_next = agent.target(torch.as_tensor(batch.next_depth), torch.as_tensor(batch.next_rel)).numpy()
+    worst = q_next.argmin(axis=1)
+    only_worst = np.zeros((b, 18), dtype=bool)
+    only_worst[np.arange(b), worst] = True
+    batch.next_allowed = only_worst
+    np.testing.assert_allclose(agent.td_target(batch, 0.5).numpy(), 0.5 * q_next.min(axis=1), rtol=1e-5)
+    batch.next_allowed = None
+    np.testing.assert_allclose(agent.td_target(batch, 0.5).numpy(), 0.5 * q_next.max(axis=1), rtol=1e-5)
+
+
+def test_replay_and_n_step_returns_carry_the_next_allowed_set():
+    acc = NStepAccumulator(2, 2)
+    buf = ReplayBuffer(16, (1, 32, 32), (1, 3), seed=0, n_actions=18)
+    d, r = np.zeros((2, 1, 32, 32), np.float32), np.zeros((2, 1, 3), np.float32)
+    for k in range(3):
+        nxt = np.zeros((2, 18), dtype=bool)
+        nxt[:, k] = True
+        out = acc.push(d, r, np.zeros(2), np.ones(2), d, r, np.zeros(2, bool), np.zeros(2, bool), 0.9, nxt)
+        if out:
+            buf.add(**out)
+    batch = buf.sample(32)
+    assert batch.next_allowed is not None and batch.next_allowed.sum(axis=1).tolist() == [1] * 32
+    assert set(np.flatnonzero(batch.next_allowed.any(axis=0)).tolist()) == {1, 2}
+
+
+def test_a_shielded_run_records_its_shield_and_evaluation_flies_with_it(tmp_path):
+    cfg = TrainConfig(
+        name="sh", episodes=6, n_envs=4, max_steps=8, learning_starts=16, batch_size=8, shield=True,
+        out_dir=str(tmp_path), checkpoint_every=3,
+    )
+    result = train(cfg, progress=False)
+    policy = Policy.from_path(result.model_path)
+    env_cfg = env_config_for_policy(policy, max_steps=5)
+    assert env_cfg.shield.enabled and env_cfg.shield.clearance_m == cfg.shield_clearance_m
+    rows = evaluate(policy_greedy_fn(policy), [_world(WALL)], 2, 0, env_cfg)
+    assert len(rows) == 2 and all(r.outcome in ("goal", "crash", "deviation", "timeout") for r in rows)
