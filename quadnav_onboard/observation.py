@@ -87,6 +87,13 @@ class ObservationHistory:
         self._rel[-1] = r
         self.version += 1
 
+    def copy(self) -> ObservationHistory:
+        """An independent copy (same contents and version)."""
+        other = ObservationHistory(self.depth_history, self.position_history)
+        other._depth[:], other._rel[:] = self._depth, self._rel
+        other._ready, other.version = self._ready, self.version
+        return other
+
     def depth_with(self, depth_input: ArrayLike) -> NDArray[np.float32]:
         """The depth stack (k_d, 32, 32) that ``push(depth_input, ...)`` would make, oldest first,
         without pushing: the last k_d - 1 inputs and this one (every slot this one if not ready)."""

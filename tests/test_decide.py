@@ -9,8 +9,9 @@ import torch
 from quadnav_onboard.checkpoint import save_checkpoint
 from quadnav_onboard.daemon.decide import Decider
 from quadnav_onboard.network import DQN, NetworkConfig
+from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
-from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig
+from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.sources.base import DepthFrame
 
 
@@ -26,38 +27,55 @@ def _frames(n: int) -> list[DepthFrame]:
     return [DepthFrame(rng.integers(300, 9000, (240, 424), dtype=np.uint16), float(i), i) for i in range(n)]
 
 
-def test_prepared_decisions_equal_full_ones_over_a_flight(policy: Policy) -> None:
-    """Preparing every frame, then deciding on it, gives the same actions, Q-values and inputs as
-    deciding from scratch, step after step (the history stays the same in both)."""
-    prepared, full = Decider(policy, PreprocessConfig()), Decider(policy, PreprocessConfig())
+def _full_decision(
+    policy: Policy, history: ObservationHistory, frame: DepthFrame, rel: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """The decision as the daemon made it before the split: preprocess, push, whole network."""
+    history.push(preprocess_depth_mm(frame.depth_mm), rel)
+    return policy.act(*history.arrays())
+
+
+def test_prepared_decisions_equal_whole_network_ones_over_a_flight(policy: Policy) -> None:
+    """Preparing each frame against a snapshot, then deciding on it, gives the same actions,
+    Q-values and history as running the whole network step after step."""
+    decider = Decider(policy, PreprocessConfig())
+    reference = ObservationHistory(policy.depth_history, policy.position_history)
     rng = np.random.default_rng(6)
     for frame in _frames(6):
         rel = rng.normal(size=3)
-        prepared.prepare(frame)
-        a, b = prepared.decide(frame, rel), full.decide(frame, rel)
-        assert (a.path, b.path) == ("prepared", "full")
-        assert a.action == b.action
-        np.testing.assert_array_equal(a.q, b.q)
-        np.testing.assert_array_equal(a.depth_input, b.depth_input)
-        np.testing.assert_array_equal(prepared.history.arrays()[0], full.history.arrays()[0])
+        prepared = decider.prepare(frame, decider.snapshot())
+        assert decider.current(frame) is prepared
+        decision = decider.decide(prepared, rel, "prepared")
+        action, q = _full_decision(policy, reference, frame, rel)
+        assert decision.action == action
+        np.testing.assert_array_equal(decision.q, q)
+        np.testing.assert_array_equal(decider.history.arrays()[0], reference.arrays()[0])
+        np.testing.assert_array_equal(decision.depth_input, reference.arrays()[0][-1])
 
 
-def test_a_stale_or_other_prepared_frame_falls_back_to_the_full_decision(policy: Policy) -> None:
-    """A frame prepared before the history changed, or another frame than the newest, is not used."""
+def test_a_frame_prepared_before_the_history_changed_or_another_frame_is_not_current(policy: Policy) -> None:
     decider = Decider(policy, PreprocessConfig())
     f0, f1, f2 = _frames(3)
-    decider.prepare(f1)
-    assert decider.decide(f0, np.zeros(3)).path == "full"  # not the frame prepared
-    assert decider.decide(f1, np.zeros(3)).path == "full"  # prepared before that push
-    decider.prepare(f2)
-    assert decider.decide(f2, np.zeros(3)).path == "prepared"
+    stale = decider.prepare(f1, decider.snapshot())
+    decider.decide(decider.prepare(f0, decider.snapshot()), np.zeros(3), "full")
+    assert decider.current(f1) is None and decider.current(f0) is None
+    with pytest.raises(RuntimeError, match="older history"):
+        decider.decide(stale, np.zeros(3), "prepared")
+    decider.prepare(f2, decider.snapshot())
+    assert decider.current(f1) is None and decider.current(f2) is not None
 
 
-def test_an_unusable_frame_raises_depth_frame_error_on_both_paths(policy: Policy) -> None:
+def test_a_preparation_never_touches_the_live_history(policy: Policy) -> None:
+    """The executor side works on its snapshot; only decide() (on the loop) pushes."""
+    decider = Decider(policy, PreprocessConfig())
+    for frame in _frames(3):
+        decider.prepare(frame, decider.snapshot())
+    assert not decider.history.ready and decider.history.version == 0
+
+
+def test_an_unusable_frame_raises_depth_frame_error(policy: Policy) -> None:
     decider = Decider(policy, PreprocessConfig())
     blank = DepthFrame(np.zeros((240, 424), np.uint16), 0.0, 1)
     with pytest.raises(DepthFrameError):
-        decider.prepare(blank)
-    with pytest.raises(DepthFrameError):
-        decider.decide(blank, np.zeros(3))
-    assert not decider.history.ready
+        decider.prepare(blank, decider.snapshot())
+    assert decider.prepared is None

@@ -36,7 +36,11 @@ def test_options_change_the_input_shape():
 
 @pytest.mark.parametrize(
     "cfg",
-    [NetworkConfig(), NetworkConfig(dueling=True), NetworkConfig(depth_history=3, position_history=2, dueling=True)],
+    [
+        NetworkConfig(),
+        NetworkConfig(dueling=True),
+        NetworkConfig(depth_history=3, position_history=2, dueling=True),
+    ],
     ids=["paper", "dueling", "history+dueling"],
 )
 def test_the_two_halves_compose_to_forward_exactly(cfg):

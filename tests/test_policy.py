@@ -91,6 +91,11 @@ def test_history_depth_with_is_the_stack_a_push_would_make_without_pushing() -> 
     np.testing.assert_array_equal(candidate, h.arrays()[0])
     np.testing.assert_array_equal(h.rel_array(), h.arrays()[1])
     assert h.version == version + 1
+    twin = h.copy()
+    np.testing.assert_array_equal(twin.arrays()[0], h.arrays()[0])
+    assert twin.version == h.version
+    twin.push(_frame(0.9), [0.0, 0.0, 0.0])
+    assert h.version == version + 1 and h.arrays()[0][-1, 0, 0] == np.float32(0.3)  # independent
 
 
 def _policy(tmp_path, cfg: NetworkConfig) -> Policy:
@@ -98,7 +103,9 @@ def _policy(tmp_path, cfg: NetworkConfig) -> Policy:
     return Policy.from_path(save_checkpoint(tmp_path / "m.pt", DQN(cfg)))
 
 
-@pytest.mark.parametrize("cfg", [NetworkConfig(), NetworkConfig(depth_history=3, position_history=2, dueling=True)])
+@pytest.mark.parametrize(
+    "cfg", [NetworkConfig(), NetworkConfig(depth_history=3, position_history=2, dueling=True)]
+)
 def test_act_from_features_of_depth_features_is_act(tmp_path, cfg: NetworkConfig) -> None:
     """The two halves the daemon runs at different times give act's action and Q-values exactly."""
     policy = _policy(tmp_path, cfg)

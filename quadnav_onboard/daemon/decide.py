@@ -1,14 +1,16 @@
-"""The DQN side of a step, split so that most of it runs before the step boundary.
+"""The DQN side of a step, split so that the heavy half runs before the step boundary.
 
-When a depth frame arrives, :meth:`Decider.prepare` preprocesses it and runs the network's depth
-lane on the depth stack the observation history *would* hold with it (without pushing). At the
-step boundary, :meth:`Decider.decide` finds that prepared frame: if it is the newest frame and the
-history has not changed since, only the position lane and the head run; otherwise (not prepared
-yet, or prepared against an older history) the whole decision runs as before. Both give the same
-action and Q-values: ``Policy.act_from_features(Policy.depth_features(d), r) == Policy.act(d, r)``.
+When a depth frame arrives, :meth:`Decider.prepare` (in the DQN executor thread) preprocesses it and
+runs the network's depth lane on the depth stack the observation history *would* hold with it. At
+the step boundary, :meth:`Decider.decide` (on the event loop) pushes the prepared input into the
+history and runs only the position lane and the head (~0.1-0.6 ms), provided the prepared frame is
+the newest one and the history has not changed since (:meth:`Decider.current`). Otherwise the
+daemon prepares the newest frame first, in the executor, and then decides: the same result either
+way, since ``Policy.act_from_features(Policy.depth_features(d), r) == Policy.act(d, r)``.
 
-Every method runs in the daemon's one DQN executor thread, so the history and the prepared slot are
-touched by that thread only (no locks).
+Threads: the history lives on the event loop (read and pushed there only); a preparation gets its
+own copy (:meth:`Decider.snapshot`), and hands its result back by replacing ``prepared`` (one
+reference), so nothing needs a lock.
 """
 
 from __future__ import annotations
@@ -24,7 +26,11 @@ from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.sources.base import DepthFrame
 
-__all__ = ["Decider", "Decision", "PreparedFrame"]
+__all__ = ["Decider", "Decision", "DecisionPath", "PreparedFrame"]
+
+DecisionPath = Literal["prepared", "waited", "full"]
+"""How a step got its prepared frame: ready at the step boundary; being prepared at the boundary
+(awaited); or prepared at the boundary (preprocessing and the whole network ran in the step)."""
 
 
 @dataclass(frozen=True)
@@ -49,8 +55,7 @@ class Decision:
     """Q-values, shape (n_actions,)."""
     depth_input: NDArray[np.float32]
     """The depth input pushed into the history (what the network saw last), (32, 32)."""
-    path: Literal["prepared", "full"]
-    """``prepared``: the frame's depth lane had already run; ``full``: the whole network ran now."""
+    path: DecisionPath
 
 
 class Decider:
@@ -62,28 +67,33 @@ class Decider:
         self.history = ObservationHistory(policy.depth_history, policy.position_history)
         self.prepared: PreparedFrame | None = None
 
-    def prepare(self, frame: DepthFrame) -> PreparedFrame:
-        """Preprocess ``frame`` and run the depth lane; keep the result as the newest prepared frame.
+    def snapshot(self) -> ObservationHistory:
+        """Loop side: a copy of the history for one preparation."""
+        return self.history.copy()
+
+    def prepare(self, frame: DepthFrame, history: ObservationHistory) -> PreparedFrame:
+        """Executor side: preprocess ``frame``, run the depth lane on ``history`` (a snapshot) plus
+        this input, and keep the result as the newest prepared frame.
 
         Raises :class:`quadnav_onboard.preprocess.DepthFrameError` for an unusable frame.
         """
         depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
-        features = self.policy.depth_features(self.history.depth_with(depth_in))
-        self.prepared = PreparedFrame(frame, depth_in, features, self.history.version)
-        return self.prepared
+        features = self.policy.depth_features(history.depth_with(depth_in))
+        prepared = PreparedFrame(frame, depth_in, features, history.version)
+        self.prepared = prepared
+        return prepared
 
-    def decide(self, frame: DepthFrame, rel_pos_body_m: ArrayLike) -> Decision:
-        """Push (``frame``'s input, ``rel_pos_body_m``) into the history and pick the action.
-
-        Uses the prepared frame when it is ``frame`` and still current, else runs everything.
-        Raises :class:`quadnav_onboard.preprocess.DepthFrameError` for an unusable frame.
-        """
+    def current(self, frame: DepthFrame) -> PreparedFrame | None:
+        """The prepared frame if it is ``frame`` and was prepared against the history as it is now."""
         p = self.prepared
         if p is not None and p.frame is frame and p.history_version == self.history.version:
-            self.history.push(p.depth_input, rel_pos_body_m)
-            action, q = self.policy.act_from_features(p.features, self.history.rel_array())
-            return Decision(action, q, p.depth_input, "prepared")
-        depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
-        self.history.push(depth_in, rel_pos_body_m)
-        action, q = self.policy.act(*self.history.arrays())
-        return Decision(action, q, depth_in, "full")
+            return p
+        return None
+
+    def decide(self, prepared: PreparedFrame, rel_pos_body_m: ArrayLike, path: DecisionPath) -> Decision:
+        """Loop side: push (the prepared input, ``rel_pos_body_m``) and pick the action (head only)."""
+        if prepared.history_version != self.history.version:
+            raise RuntimeError("decide() with a frame prepared against an older history")
+        self.history.push(prepared.depth_input, rel_pos_body_m)
+        action, q = self.policy.act_from_features(prepared.features, self.history.rel_array())
+        return Decision(action, q, prepared.depth_input, path)

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.daemon.decide import DecisionPath, PreparedFrame
 from quadnav_onboard.daemon.stats import LatencyStats, Latest
 from quadnav_onboard.daemon.summary import NullNotifier
 from quadnav_onboard.daemon.supervisor import FlightSnapshot, StopReason, check_in_flight
@@ -39,13 +40,13 @@ class RunStats:
         self.decision_latency = LatencyStats()
         """Decision start (newest frame taken) -> first setpoint of the new primitive sent."""
         self.inference = LatencyStats()
-        """The step's DQN call in the executor, from the step boundary (including any wait for a
-        frame preparation already running in the one executor thread)."""
+        """The step's DQN work from the step boundary: the head, plus any wait for, or run of, the
+        newest frame's preparation."""
         self.frame_age = LatencyStats()
         """Age of the depth frame a decision used, at the step boundary (sensor latency, not
         decision latency)."""
-        self.decision_paths = {"prepared": 0, "full": 0}
-        """Decisions that ran only the head on a prepared frame / the whole network."""
+        self.decision_paths: dict[DecisionPath, int] = {"prepared": 0, "waited": 0, "full": 0}
+        """How each decision got its prepared frame (see ``decide.DecisionPath``)."""
         self.setpoint_interval = LatencyStats()
         """Time between consecutive setpoints sent."""
         self.hold_reaction_s: float | None = None
@@ -54,7 +55,7 @@ class RunStats:
         self.odometry_samples = 0
         self.setpoints = 0
 
-    def count_decision(self, path: str, frame_age_s: float) -> None:
+    def count_decision(self, path: DecisionPath, frame_age_s: float) -> None:
         self.decision_paths[path] += 1
         self.frame_age.add(frame_age_s)
 
@@ -85,6 +86,7 @@ class Loops:
         self.decision_latency_last_s = math.nan
         self.pending_step: dict[str, Any] | None = None
         self.depth_error: str | None = None
+        self._preparing: asyncio.Future[PreparedFrame] | None = None
         self.stats = RunStats()
 
     # --- stop requests -------------------------------------------------------------------------
@@ -146,8 +148,6 @@ class Loops:
         which is prepared next. A frame that preprocessing rejects is flagged as ``depth_error``
         (while it is still the newest), so the supervisor stops the flight for bad depth.
         """
-        loop = asyncio.get_running_loop()
-        decider, executor = self.decider, self._executor  # type: ignore[attr-defined]
         seq = 0
         while True:
             frame = await self.latest_depth.wait_newer(seq)
@@ -155,12 +155,37 @@ class Loops:
             if not self.flying or self.stop_reason is not None:  # type: ignore[attr-defined]
                 continue
             try:
-                await loop.run_in_executor(executor, decider.prepare, frame)
+                await self._prepare(frame)
             except DepthFrameError as exc:
                 if self.latest_depth.value is frame:
                     self.depth_error = str(exc)
-            except Exception as exc:  # a bug: the step falls back to the full decision
+            except Exception as exc:  # a bug: the step prepares its frame itself
                 log.error("depth_prepare_failed", error=f"{type(exc).__name__}: {exc}")
+
+    def _prepare(self, frame: DepthFrame) -> asyncio.Future[PreparedFrame]:
+        """Preparation of ``frame`` in the DQN executor, against a snapshot of the history now."""
+        decider = self.decider  # type: ignore[attr-defined]
+        loop = asyncio.get_running_loop()
+        fut = loop.run_in_executor(self._executor, decider.prepare, frame, decider.snapshot())  # type: ignore[attr-defined]
+        self._preparing = fut
+        return fut
+
+    async def prepared_for(self, frame: DepthFrame) -> tuple[PreparedFrame, DecisionPath]:
+        """At the step boundary: ``frame`` prepared against the current history, and how it came.
+
+        Ready: no wait. Being prepared: wait for it (the executor has one thread; anything else
+        would queue behind it). Otherwise prepare it now. Raises ``DepthFrameError``.
+        """
+        decider = self.decider  # type: ignore[attr-defined]
+        prepared = decider.current(frame)
+        if prepared is not None:
+            return prepared, "prepared"
+        if self._preparing is not None and not self._preparing.done():
+            await asyncio.wait({self._preparing})  # never cancels it; its task reads the outcome
+            prepared = decider.current(frame)
+            if prepared is not None:
+                return prepared, "waited"
+        return await self._prepare(frame), "full"
 
     async def ingest_odometry(self) -> None:
         """Newest pose wins; optionally forwarded to PX4 as a vision estimate (rate limited)."""

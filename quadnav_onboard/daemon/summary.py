@@ -45,11 +45,13 @@ class FlightSummary:
     decision_latency_ms: dict[str, float | None]
     """Newest frame taken -> first setpoint of the new primitive sent: n, p50, p99, max (ms)."""
     inference_ms: dict[str, float | None]
-    """The step's DQN call in the executor (head only, or preprocess + whole DQN): n, p50, p99, max (ms)."""
+    """The step's DQN work from the step boundary (the head; plus any wait for, or run of, the
+    frame's preparation): n, p50, p99, max (ms)."""
     frame_age_ms: dict[str, float | None]
     """Age of the depth frame each decision used, at the step boundary: n, p50, p99, max (ms)."""
     decision_paths: dict[str, int]
-    """Decisions on a prepared frame (head only) and full ones: {"prepared": n, "full": n}."""
+    """How each decision got its prepared frame: ready at the step boundary, awaited, or prepared
+    in the step: {"prepared": n, "waited": n, "full": n}."""
     setpoint_interval_ms: dict[str, float | None]
     """Interval between setpoints sent: n, p50, p99, max (ms)."""
     hold_reaction_ms: float | None
@@ -110,10 +112,10 @@ class FlightSummary:
 
         lines = [
             fmt("decision latency (frame -> first setpoint)", self.decision_latency_ms),
-            fmt("DQN call at the step (head only, or preprocess + DQN)", self.inference_ms),
+            fmt("DQN at the step (head; + preprocess and depth lane if not prepared)", self.inference_ms),
             fmt("frame age at the step (sensor latency)", self.frame_age_ms),
-            f"decisions: {self.decision_paths['prepared']} on a prepared frame, "
-            f"{self.decision_paths['full']} full",
+            "decisions: {prepared} on a frame prepared on arrival, {waited} waited for its "
+            "preparation, {full} prepared in the step".format(**self.decision_paths),
             fmt("setpoint interval", self.setpoint_interval_ms),
         ]
         if self.hold_reaction_ms is not None:
