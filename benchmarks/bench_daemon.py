@@ -15,7 +15,10 @@ Figures:
   * daemon CPU, % of one core (goal <= 25 %)
   * stale depth / stale odometry -> hold command issued, after the threshold (goal <= 100 ms)
 
-    .venv/bin/python benchmarks/bench_daemon.py --out bench_daemon.json [--model CKPT.pt]
+    .venv/bin/python benchmarks/bench_daemon.py --out bench_daemon.json [--model CKPT.pt] [--record]
+
+``--record``: every flight also writes its MCAP flight record (``FlightRecorder`` with the
+daemon's default settings), as ``quadnav-onboard`` does unless ``--no-record``.
 """
 
 from __future__ import annotations
@@ -110,12 +113,22 @@ def config(max_steps: int) -> FlightConfig:
     )
 
 
-async def fly(port: int, policy: Policy, max_steps: int, cut: str | None) -> tuple[Any, float]:
+async def fly(
+    port: int, policy: Policy, max_steps: int, cut: str | None, record: Path | None = None
+) -> tuple[Any, float]:
     vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=15.0)
     depth, mocap = CameraFeed(), MocapFeed(vehicle)
     path = RoughPath(np.array([[0.0, 0.0, 1.5], [22.0, 0.0, 1.5]]), 1.0)
+    cfg = config(max_steps)
+    recorder = None
+    if record is not None:
+        from quadnav_onboard.record import FlightRecorder
+
+        recorder = FlightRecorder(
+            record, metadata={"benchmark": "bench_daemon"}, depth_decimation=cfg.record.depth_decimation
+        )
     daemon = FlightDaemon(
-        config(max_steps), path=path, policy=policy, depth=depth, odometry=mocap, vehicle=vehicle
+        cfg, path=path, policy=policy, depth=depth, odometry=mocap, vehicle=vehicle, recorder=recorder
     )
 
     async def cutter() -> None:
@@ -157,6 +170,7 @@ def main() -> None:
     )
     ap.add_argument("--stale-runs", type=int, default=3, help="runs per stale-input reaction figure")
     ap.add_argument("--out", type=Path, default=Path("bench_daemon.json"))
+    ap.add_argument("--record", action="store_true", help="write each flight's MCAP record (as in flight)")
     args = ap.parse_args()
     configure_logging(json=True, level="error")
     import torch
@@ -177,19 +191,23 @@ def main() -> None:
         "cpus": os.cpu_count(),
         "model": str(model),
         "loadavg_at_start": [round(x, 2) for x in os.getloadavg()],
+        "recording": args.record,
     }
     stale: dict[str, list[float]] = {"depth": [], "odometry": []}
     runs = [("main", None)] + [(k, k) for k in ("depth", "odometry") for _ in range(args.stale_runs)]
-    for name, cut in runs:
+    for i, (name, cut) in enumerate(runs):
         port = free_udp_port()
         emu = serve(world, port)
+        record = tmp / f"flight-{i}-{name}.mcap" if args.record else None
         try:
-            summary, cpu = asyncio.run(fly(port, policy, 80 if cut is None else 30, cut))
+            summary, cpu = asyncio.run(fly(port, policy, 80 if cut is None else 30, cut, record))
         finally:
             emu.terminate()
             emu.wait(10)
         if cut is None:
             results["main_run"] = {**summary.to_dict(), "daemon_cpu_fraction_of_one_core": round(cpu, 4)}
+            if record is not None:
+                results["main_run"]["record_bytes"] = record.stat().st_size
         elif summary.hold_reaction_ms is not None:
             stale[cut].append(summary.hold_reaction_ms)
         print(f"{name}: stop {summary.stop_reason}, steps {summary.steps}, cpu {cpu:.1%}", flush=True)
@@ -233,6 +251,8 @@ def main() -> None:
     print("decisions: {prepared} prepared on arrival, {waited} waited, {full} full".format(**paths))
     print(f"frame age at the step (sensor latency): p50 {age['p50_ms']} / p99 {age['p99_ms']} ms")
     print(f"load average at start {results['loadavg_at_start']}, at end {results['loadavg_at_end']}")
+    if args.record:
+        print(f"recording on: main flight's record {results['main_run']['record_bytes'] / 1e6:.1f} MB")
     args.out.write_text(json.dumps(results, indent=2, default=str))
     print(f"\nwrote {args.out}")
 
