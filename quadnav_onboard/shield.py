@@ -52,9 +52,9 @@ class ShieldConfig:
 
     enabled: bool = False
     """Veto primitives whose swept path comes closer than ``clearance_m`` to a seen obstacle."""
-    clearance_m: float = 0.55
-    """Least allowed distance (m) from the primitive's path to any remembered depth point
-    (the quad's 0.3 m radius plus a margin for tracking error and depth noise)."""
+    clearance_m: float = 0.5
+    """Least allowed distance (m) from the primitive's predicted path to any remembered depth point
+    (the quad's 0.3 m radius plus a margin for depth noise and what the prediction misses)."""
     memory_steps: int = 4
     """Decisions whose depth points are remembered (the current one included)."""
     samples: int = 8
@@ -70,9 +70,10 @@ class ShieldConfig:
     """Acceleration limit (m/s^2) of that position loop (PX4's MPC_ACC_HOR_MAX-like)."""
     track_dt_s: float = 0.05
     """Integration step (s) of the prediction."""
-    require_seen: bool = True
+    require_seen: bool = False
     """Also veto primitives that fly into space no remembered view saw to be free (beside or below
-    the camera's field of view, behind obstacles)."""
+    the camera's field of view, behind obstacles). Safer in principle, but the planner then often
+    hovers in place until the step limit (docs/results.md); off by default."""
     seen_margin_m: float = 0.3
     """A sample counts as seen free when it lies this far (m) in front of the measured depth."""
     near_m: float = 0.4

@@ -28,6 +28,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="WORLD",
         help="world YAML file or paper id (env04, 4); repeat for more (default: the ten paper worlds)",
     )
+    p.add_argument(
+        "--procedural",
+        type=int,
+        default=0,
+        metavar="N",
+        help="fly N procedurally generated worlds of the paper's families instead (never trained on "
+        "unless their seed is the training one; see --procedural-seed)",
+    )
+    p.add_argument(
+        "--procedural-seed",
+        type=int,
+        default=4242,
+        help="seed of the generated worlds (default 4242; training uses 20261124)",
+    )
     p.add_argument("--trials", type=int, default=5, help="trials per world (default 5, as in the paper)")
     p.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default 0)")
     p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
@@ -70,6 +84,11 @@ def run(args: argparse.Namespace) -> int:
             else [paper_world_path(i) for i in range(1, 11)]
         )
         worlds = [load_world(p) for p in paths]
+        if args.procedural > 0:
+            from sim_harness.procgen import procedural_worlds
+
+            worlds = procedural_worlds(args.procedural, args.procedural_seed)
+            paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
         shield = None
         if args.shield != "model":
             base = shield_config_from_meta(policy.checkpoint.meta)

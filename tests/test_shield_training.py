@@ -39,8 +39,9 @@ def test_env_vetoes_forward_primitives_into_a_wall():
     assert env.allowed[:, HOVER].all()
 
 
-def test_in_free_space_the_allowed_set_grows_as_the_camera_sees_more():
-    free = VecQuadNavEnv([_world([])], 1, seed=0, config=SHIELDED)
+def test_requiring_seen_space_the_allowed_set_grows_as_the_camera_sees_more():
+    seen = EnvConfig(start_jitter_m=0.0, shield=ShieldConfig(enabled=True, require_seen=True))
+    free = VecQuadNavEnv([_world([])], 1, seed=0, config=seen)
     free.reset()  # only what the first view covers: straight on, or stay
     assert set(np.flatnonzero(free.allowed[0]).tolist()) == {FORWARD, HOVER}
     for _ in range(2):

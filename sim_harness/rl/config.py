@@ -99,10 +99,15 @@ class TrainConfig:
     """Depth safety filter in the loop (beyond the paper): acting (greedy and random) and the TD
     target keep to the primitives it allows; the checkpoint records it, so eval and the daemon
     fly with it too (quadnav_onboard.shield)."""
-    shield_clearance_m: Annotated[float, pydantic.Field(gt=0)] = 0.55
+    shield_clearance_m: Annotated[float, pydantic.Field(gt=0)] = 0.5
     """Least clearance (m) from a primitive's predicted path to remembered depth points."""
     shield_memory_steps: Annotated[int, pydantic.Field(ge=1)] = 4
     """Decisions whose depth points the shield remembers."""
+    shield_require_seen: bool = False
+    """The shield also vetoes primitives into space no remembered view saw to be free."""
+    init_model: str = ""
+    """Checkpoint whose weights start the online and target networks (fine-tuning; "" = random
+    init). Its network shape must match this config's."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1)] = 100
     """Episodes between checkpoints (model + resumable training state)."""
     torch_threads: Annotated[int, pydantic.Field(ge=1)] = 1

@@ -21,7 +21,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from quadnav_onboard.checkpoint import save_checkpoint
+from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+from quadnav_onboard.config import ConfigError
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
@@ -64,7 +65,10 @@ def env_config_for(cfg: TrainConfig) -> EnvConfig:
         depth_history=cfg.depth_history,
         position_history=cfg.position_history,
         shield=ShieldConfig(
-            enabled=cfg.shield, clearance_m=cfg.shield_clearance_m, memory_steps=cfg.shield_memory_steps
+            enabled=cfg.shield,
+            clearance_m=cfg.shield_clearance_m,
+            memory_steps=cfg.shield_memory_steps,
+            require_seen=cfg.shield_require_seen,
         ),
     )
 
@@ -133,6 +137,15 @@ def train(
         AgentConfig(cfg.learning_rate, cfg.double_dqn, cfg.target_update_interval, cfg.max_grad_norm),
         device=cfg.device,
     )
+    if cfg.init_model and resume is None:
+        init = load_checkpoint(cfg.init_model)
+        if init.network != agent.q.config:
+            raise ConfigError(
+                f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
+                f"this config's {agent.q.config}"
+            )
+        agent.q.load_state_dict(init.model.state_dict())
+        agent.target.load_state_dict(init.model.state_dict())
     kd, kp = cfg.depth_history, cfg.position_history
     n_actions = env.prims.n_actions
     buffer = ReplayBuffer(cfg.buffer_size, (kd, 32, 32), (kp, 3), seed=cfg.seed + 1, n_actions=n_actions)
