@@ -223,19 +223,51 @@ def _predict_tracking(
 ) -> tuple[NDArray, NDArray]:
     """Positions (N, A, K / every, 3) and final velocity (N, A, 3) of a critically damped,
     acceleration-limited position loop following ``cmd``/``vcmd`` (N, A, K, 3) from (N, 3)."""
-    w, amax = cfg.track_omega_rad_s, cfg.track_accel_m_s2
-    p = np.repeat(pos[:, None, :], cmd.shape[1], axis=1)
-    v = np.repeat(vel[:, None, :], cmd.shape[1], axis=1)
-    out = np.empty((cmd.shape[0], cmd.shape[1], cmd.shape[2] // every, 3))
-    for k in range(cmd.shape[2]):
-        acc = w * w * (cmd[:, :, k] - p) + 2.0 * w * (vcmd[:, :, k] - v)
-        norm = np.sqrt((acc * acc).sum(-1, keepdims=True))
-        acc *= np.minimum(1.0, amax / np.maximum(norm, 1e-12))
-        v = v + acc * dt
-        p = p + v * dt
-        if (k + 1) % every == 0:
-            out[:, :, (k + 1) // every - 1] = p
-    return out, v
+    n, a, k = cmd.shape[:3]
+    out = np.empty((n, a, k // every, 3))
+    v_end = np.empty((n, a, 3))
+    _track(
+        np.ascontiguousarray(pos, dtype=np.float64),
+        np.ascontiguousarray(vel, dtype=np.float64),
+        np.ascontiguousarray(cmd),
+        np.ascontiguousarray(vcmd),
+        float(dt),
+        int(every),
+        float(cfg.track_omega_rad_s),
+        float(cfg.track_accel_m_s2),
+        out,
+        v_end,
+    )
+    return out, v_end
+
+
+@numba.njit(cache=True, nogil=True)
+def _track(
+    pos: NDArray, vel: NDArray, cmd: NDArray, vcmd: NDArray, dt: float, every: int, w: float, amax: float,
+    out: NDArray, v_end: NDArray,
+) -> None:  # pragma: no cover
+    n, a, k = cmd.shape[0], cmd.shape[1], cmd.shape[2]
+    acc = np.empty(3)
+    for i in range(n):
+        for j in range(a):
+            p0, p1, p2 = pos[i, 0], pos[i, 1], pos[i, 2]
+            v0, v1, v2 = vel[i, 0], vel[i, 1], vel[i, 2]
+            for q in range(k):
+                acc[0] = w * w * (cmd[i, j, q, 0] - p0) + 2.0 * w * (vcmd[i, j, q, 0] - v0)
+                acc[1] = w * w * (cmd[i, j, q, 1] - p1) + 2.0 * w * (vcmd[i, j, q, 1] - v1)
+                acc[2] = w * w * (cmd[i, j, q, 2] - p2) + 2.0 * w * (vcmd[i, j, q, 2] - v2)
+                norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+                scale = min(1.0, amax / max(norm, 1e-12))
+                v0 += acc[0] * scale * dt
+                v1 += acc[1] * scale * dt
+                v2 += acc[2] * scale * dt
+                p0 += v0 * dt
+                p1 += v1 * dt
+                p2 += v2 * dt
+                if (q + 1) % every == 0:
+                    r = (q + 1) // every - 1
+                    out[i, j, r, 0], out[i, j, r, 1], out[i, j, r, 2] = p0, p1, p2
+            v_end[i, j, 0], v_end[i, j, 1], v_end[i, j, 2] = v0, v1, v2
 
 
 @numba.njit(cache=True, nogil=True)

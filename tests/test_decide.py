@@ -7,11 +7,13 @@ import pytest
 import torch
 
 from quadnav_onboard.checkpoint import save_checkpoint
-from quadnav_onboard.daemon.decide import Decider
+from quadnav_onboard.daemon.decide import Decider, Motion
 from quadnav_onboard.network import DQN, NetworkConfig
 from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig, preprocess_depth_mm
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from quadnav_onboard.shield import ShieldConfig
 from quadnav_onboard.sources.base import DepthFrame
 
 
@@ -79,3 +81,43 @@ def test_an_unusable_frame_raises_depth_frame_error(policy: Policy) -> None:
     with pytest.raises(DepthFrameError):
         decider.prepare(blank, decider.snapshot())
     assert decider.prepared is None
+
+
+def _wall_frame(distance_mm: int) -> DepthFrame:
+    return DepthFrame(np.full((240, 424), distance_mm, dtype=np.uint16), 0.0, 0)
+
+
+def _still(pos: tuple[float, float, float] = (0.0, 0.0, 2.0)) -> Motion:
+    p = np.array(pos)
+    return Motion(p, np.zeros(3), p.copy(), np.zeros(3), 0.0)
+
+
+def test_with_the_shield_on_the_decision_keeps_out_of_a_wall_in_front(policy: Policy) -> None:
+    """A wall 1.2 m ahead: no forward primitive is allowed, the chosen one is among the allowed,
+    and the decision carries the verdict; with the shield off the same Q-values stand alone."""
+    shielded = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True))
+    frame = _wall_frame(1200)
+    decision = shielded.decide(shielded.prepare(frame, shielded.snapshot()), np.zeros(3), "full", _still())
+    assert decision.allowed is not None and decision.clearance_m is not None
+    forward = [i for i, d in enumerate(DEFAULT_DIRECTIONS) if d[0] == 1]
+    assert not decision.allowed[forward].any()
+    assert decision.allowed[decision.action]
+    plain = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=False))
+    unshielded = plain.decide(plain.prepare(frame, plain.snapshot()), np.zeros(3), "full")
+    assert unshielded.allowed is None
+    np.testing.assert_array_equal(unshielded.q, decision.q)
+
+
+def test_the_shield_needs_the_vehicles_motion(policy: Policy) -> None:
+    decider = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True))
+    prepared = decider.prepare(_wall_frame(5000), decider.snapshot())
+    with pytest.raises(ValueError, match="motion"):
+        decider.decide(prepared, np.zeros(3), "full")
+
+
+def test_the_decider_flies_the_shield_the_checkpoint_names(tmp_path) -> None:
+    meta = {"shield": {"enabled": True, "clearance_m": 0.7}}
+    path = save_checkpoint(tmp_path / "s.pt", DQN(NetworkConfig()), meta=meta)
+    decider = Decider(Policy.from_path(path), PreprocessConfig())
+    assert decider.shield.enabled and decider.shield.clearance_m == 0.7
+    assert not Decider(Policy.from_path(path), PreprocessConfig(), shield=ShieldConfig()).shield.enabled

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from quadnav_onboard.daemon.config import FlightConfig
-from quadnav_onboard.daemon.decide import Decider
+from quadnav_onboard.daemon.decide import Decider, Motion
 from quadnav_onboard.daemon.ladder import StopLadder
 from quadnav_onboard.daemon.mission import (
     ActivePrimitive,
@@ -84,7 +84,7 @@ class FlightDaemon(StopLadder):
         self.trigger = trigger
         self.prims = (cfg.primitives or policy.primitive_config()).build()
         self.preprocess_cfg = cfg.preprocess or policy.preprocess_config()
-        self.decider = Decider(policy, self.preprocess_cfg)
+        self.decider = Decider(policy, self.preprocess_cfg, self.prims, cfg.shield)
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqn")
         self.flying = False
         self.total_reward = 0.0
@@ -388,7 +388,11 @@ class FlightDaemon(StopLadder):
             except DepthFrameError as exc:
                 self.request_stop(StopReason.BAD_DEPTH, str(exc))
                 return
-            decision = self.decider.decide(prepared, inputs.rel_pos_body_m, how)  # head only, on the loop
+            vel = odom.vel_world_m_s  # type: ignore[union-attr]
+            motion = Motion(pos, end_vel if vel is None else np.asarray(vel, dtype=np.float64), end_world,
+                            end_vel, inputs.yaw_rad)
+            # the head and the shield, on the loop
+            decision = self.decider.decide(prepared, inputs.rel_pos_body_m, how, motion)
             self.t_decision_start = None
             self.last_inference_s = time.monotonic() - t_decide
             action, q = decision.action, decision.q
@@ -422,6 +426,18 @@ class FlightDaemon(StopLadder):
                 inference_ms=round(self.last_inference_s * 1e3, 2),
                 decision_path=decision.path,
                 frame_age_ms=round(frame_age_s * 1e3, 1),
+                **_shield_log(decision),
             )
             k += 1
             self.pending_step = pending
+
+
+def _shield_log(decision: Any) -> dict[str, Any]:
+    """The shield's verdict for a step's log line (nothing when it is off)."""
+    if decision.allowed is None:
+        return {}
+    return {
+        "shield_allowed": int(decision.allowed.sum()),
+        "shield_vetoed_greedy": bool(not decision.allowed[int(np.argmax(decision.q))]),
+        "clearance_m": round(float(decision.clearance_m[decision.action]), 2),
+    }

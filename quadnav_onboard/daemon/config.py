@@ -19,6 +19,7 @@ import pydantic
 from quadnav_onboard.config import ConfigError, PrimitiveConfig, load_yaml, parse_config
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.reward import RewardParams
+from quadnav_onboard.shield import ShieldConfig
 
 __all__ = [
     "DepthSourceConfig",
@@ -201,6 +202,9 @@ class FlightConfig:
     """Action set; None = what the checkpoint was trained with (real flight: scale_m 0.5)."""
     preprocess: PreprocessConfig | None = None
     """Depth preprocessing; None = what the checkpoint was trained with."""
+    shield: ShieldConfig | None = None
+    """Depth safety filter on the primitives; None = what the checkpoint was evaluated with
+    (``meta.shield``; the bundled model flies with it on)."""
     reward: RewardParams = field(default_factory=RewardParams)
     """Reward constants, for the flight's total reward (as in training)."""
     safety: SafetyConfig = field(default_factory=SafetyConfig)

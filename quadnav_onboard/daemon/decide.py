@@ -24,9 +24,19 @@ from numpy.typing import ArrayLike, NDArray
 from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
+from quadnav_onboard.primitives import PrimitiveSet
+from quadnav_onboard.shield import (
+    PointMemory,
+    ShieldConfig,
+    allowed_actions,
+    primitive_clearance,
+    primitive_samples,
+    primitive_seen_free,
+    shield_config_from_meta,
+)
 from quadnav_onboard.sources.base import DepthFrame
 
-__all__ = ["Decider", "Decision", "DecisionPath", "PreparedFrame"]
+__all__ = ["Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
 
 DecisionPath = Literal["prepared", "waited", "full"]
 """How a step got its prepared frame: ready at the step boundary; being prepared at the boundary
@@ -47,6 +57,22 @@ class PreparedFrame:
 
 
 @dataclass(frozen=True)
+class Motion:
+    """Where the vehicle is and where the next primitive starts, at a step boundary (world frame)."""
+
+    pos_world_m: NDArray[np.float64]
+    """Measured position (m), (3,): the camera's viewpoint and the tracking prediction's start."""
+    vel_world_m_s: NDArray[np.float64]
+    """Measured velocity (m/s), (3,) (the commanded one when the odometry has none)."""
+    start_world_m: NDArray[np.float64]
+    """Commanded start of the next primitive (the previous one's commanded end), (3,)."""
+    start_vel_world_m_s: NDArray[np.float64]
+    """Commanded velocity there, (3,)."""
+    yaw_rad: float
+    """Heading of this step's frame (the camera's yaw)."""
+
+
+@dataclass(frozen=True)
 class Decision:
     """The outcome of one step's decision."""
 
@@ -56,16 +82,30 @@ class Decision:
     depth_input: NDArray[np.float32]
     """The depth input pushed into the history (what the network saw last), (32, 32)."""
     path: DecisionPath
+    allowed: NDArray[np.bool_] | None = None
+    """Primitives the shield allowed (n_actions,); None when the shield is off."""
+    clearance_m: NDArray[np.float64] | None = None
+    """The shield's clearance (m) of every primitive (n_actions,); None when it is off."""
 
 
 class Decider:
     """The observation history, the policy, and the newest prepared frame (latest wins)."""
 
-    def __init__(self, policy: Policy, preprocess: PreprocessConfig) -> None:
+    def __init__(
+        self,
+        policy: Policy,
+        preprocess: PreprocessConfig,
+        prims: PrimitiveSet | None = None,
+        shield: ShieldConfig | None = None,
+    ) -> None:
         self.policy = policy
         self.preprocess = preprocess
         self.history = ObservationHistory(policy.depth_history, policy.position_history)
         self.prepared: PreparedFrame | None = None
+        self.prims = prims or policy.primitive_set()
+        self.shield = shield if shield is not None else shield_config_from_meta(policy.checkpoint.meta)
+        """The depth safety filter (default: the one the model was evaluated with)."""
+        self.memory = PointMemory(1, self.shield) if self.shield.enabled else None
 
     def snapshot(self) -> ObservationHistory:
         """Loop side: a copy of the history for one preparation."""
@@ -90,10 +130,36 @@ class Decider:
             return p
         return None
 
-    def decide(self, prepared: PreparedFrame, rel_pos_body_m: ArrayLike, path: DecisionPath) -> Decision:
-        """Loop side: push (the prepared input, ``rel_pos_body_m``) and pick the action (head only)."""
+    def decide(
+        self,
+        prepared: PreparedFrame,
+        rel_pos_body_m: ArrayLike,
+        path: DecisionPath,
+        motion: Motion | None = None,
+    ) -> Decision:
+        """Loop side: push (the prepared input, ``rel_pos_body_m``) and pick the action (head only),
+        among the primitives the shield allows from ``motion`` (required when the shield is on)."""
         if prepared.history_version != self.history.version:
             raise RuntimeError("decide() with a frame prepared against an older history")
         self.history.push(prepared.depth_input, rel_pos_body_m)
-        action, q = self.policy.act_from_features(prepared.features, self.history.rel_array())
-        return Decision(action, q, prepared.depth_input, path)
+        allowed = clearance = None
+        if self.memory is not None:
+            if motion is None:
+                raise ValueError("the shield is on: decide() needs the vehicle's motion")
+            allowed, clearance = self._shield(prepared.depth_input, motion)
+        action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed)
+        return Decision(action, q, prepared.depth_input, path, allowed, clearance)
+
+    def _shield(self, depth_input: NDArray[np.float32], m: Motion) -> tuple[NDArray, NDArray]:
+        """Remember this view and check every primitive against what was seen (as the sim does)."""
+        cfg, mem = self.shield, self.memory
+        assert mem is not None
+        pos, yaw = m.pos_world_m[None], np.array([m.yaw_rad])
+        mem.add([0], depth_input[None], pos, yaw)
+        samples = primitive_samples(
+            self.prims, m.start_world_m[None], m.start_vel_world_m_s[None], yaw, cfg,
+            pos_world_m=pos, vel_world_m_s=m.vel_world_m_s[None],
+        )
+        clearance = primitive_clearance(samples, mem.points, cfg)
+        seen = primitive_seen_free(samples, mem.depth_m, mem.pose, pos, cfg) if cfg.require_seen else None
+        return allowed_actions(clearance, cfg, seen)[0], clearance[0]
