@@ -46,7 +46,7 @@ from quadnav_onboard.logs import get_logger
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError
-from quadnav_onboard.sources.base import DepthSource, OdometrySource
+from quadnav_onboard.sources.base import DepthFrame, DepthSource, OdometrySource
 from quadnav_onboard.vehicle import VehicleError, VehicleLink
 
 __all__ = ["FlightDaemon"]
@@ -264,10 +264,8 @@ class FlightDaemon(StopLadder):
                 False,
                 f"model has {pol.n_actions} outputs, the action set has {self.prims.n_actions}",
             )
-        depth = np.ones((pol.depth_history, 32, 32), np.float32)
-        rel = np.zeros((pol.position_history, 3), np.float32)
         try:
-            _, q = pol.act(depth, rel)
+            q = self._test_decision()
         except Exception as exc:
             return PreflightCheck("model", False, f"test inference failed: {exc}")
         if q.shape != (self.prims.n_actions,) or not np.all(np.isfinite(q)):
@@ -276,6 +274,18 @@ class FlightDaemon(StopLadder):
             )
         sha = pol.checkpoint.sha256[:12]
         return PreflightCheck("model", True, f"{pol.n_actions} actions, sha256 {sha}")
+
+    def _test_decision(self) -> np.ndarray:
+        """One whole decision (preprocess, depth lane, shield, head) on a scratch decider and a
+        synthetic frame: checks the model, and compiles what compiles on first use (the shield's
+        numba code took ~250 ms on its first call, which in flight stalled the loop into a
+        stale-depth stop)."""
+        scratch = Decider(self.policy, self.preprocess_cfg, self.prims, self.cfg.shield)
+        frame = DepthFrame(np.full((240, 424), 5000, np.uint16), time.monotonic())
+        start = np.asarray(self.path.start_m, dtype=np.float64)
+        motion = Motion(start, np.zeros(3), start, np.zeros(3), float(self.path.yaw_at(0.0)))
+        prepared = scratch.prepare(frame, scratch.snapshot())
+        return scratch.decide(prepared, np.zeros(3), "full", motion).q
 
     async def _wait_for_go(self) -> None:
         """Wait for the operator's go. For a pilot's switch to OFFBOARD, stream the vehicle's current
