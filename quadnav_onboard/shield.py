@@ -142,6 +142,13 @@ class PointMemory:
         self.depth_m = np.zeros((n, k, INPUT_SIZE, INPUT_SIZE), dtype=np.float32)
         self.pose = np.full((n, k, 4), np.nan)
 
+    def copy(self) -> PointMemory:
+        """An independent copy (the flight daemon never mutates a memory another thread may read)."""
+        new = PointMemory.__new__(PointMemory)
+        new.cfg = self.cfg
+        new.points, new.depth_m, new.pose = self.points.copy(), self.depth_m.copy(), self.pose.copy()
+        return new
+
     def clear(self, ids: ArrayLike | None = None) -> None:
         """Forget everything (of vehicles ``ids``, default all): a new episode or flight."""
         sel = slice(None) if ids is None else np.asarray(ids)

@@ -121,3 +121,20 @@ def test_the_decider_flies_the_shield_the_checkpoint_names(tmp_path) -> None:
     decider = Decider(Policy.from_path(path), PreprocessConfig())
     assert decider.shield.enabled and decider.shield.clearance_m == 0.7
     assert not Decider(Policy.from_path(path), PreprocessConfig(), shield=ShieldConfig()).shield.enabled
+
+
+def test_a_shield_verdict_prepared_with_the_frame_equals_the_one_at_the_step_boundary(policy: Policy) -> None:
+    """Preparing the verdict off the loop (motion at preparation) gives the boundary's verdict for
+    the same motion, over several steps, and commits the same memory."""
+    cfg = ShieldConfig(enabled=True)
+    ahead = Decider(policy, PreprocessConfig(), shield=cfg)
+    at_step = Decider(policy, PreprocessConfig(), shield=cfg)
+    for k, dist in enumerate((4000, 2500, 1400)):
+        frame = _wall_frame(dist)
+        m = _still((float(k), 0.0, 2.0))
+        early = ahead.decide(ahead.prepare(frame, ahead.snapshot(), m, ahead.memory), np.zeros(3), "prepared")
+        late = at_step.decide(at_step.prepare(frame, at_step.snapshot()), np.zeros(3), "full", m)
+        assert early.action == late.action
+        np.testing.assert_array_equal(early.allowed, late.allowed)
+        np.testing.assert_allclose(early.clearance_m, late.clearance_m)
+        np.testing.assert_array_equal(ahead.memory.points, at_step.memory.points)

@@ -85,6 +85,8 @@ class FlightDaemon(StopLadder):
         self.prims = (cfg.primitives or policy.primitive_config()).build()
         self.preprocess_cfg = cfg.preprocess or policy.preprocess_config()
         self.decider = Decider(policy, self.preprocess_cfg, self.prims, cfg.shield)
+        self.next_start: tuple[np.ndarray, np.ndarray] | None = None
+        """Commanded start (world m) and velocity (m/s) of the next primitive, once in the mission."""
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqn")
         self.flying = False
         self.total_reward = 0.0
@@ -364,6 +366,16 @@ class FlightDaemon(StopLadder):
 
     # --- mission -------------------------------------------------------------------------------
 
+    def motion_now(self) -> Motion | None:
+        """The vehicle's motion now and the commanded start of its next primitive, for a frame
+        prepared between step boundaries (None before the mission: the boundary computes it)."""
+        odom, start = self.latest_odom.value, self.next_start
+        if odom is None or start is None:
+            return None
+        pos = np.asarray(odom.pos_world_m, dtype=np.float64)
+        vel = start[1] if odom.vel_world_m_s is None else np.asarray(odom.vel_world_m_s, dtype=np.float64)
+        return Motion(pos, vel, start[0], start[1], float(self.path.yaw_at(self.path.progress_m(pos))))
+
     async def _mission(self) -> None:
         self.phase = "mission"
         self.in_mission = True
@@ -372,6 +384,7 @@ class FlightDaemon(StopLadder):
         self.t_mission_start_mono_s = t0
         start = self.trajectory.end_world_m  # commanded end of the take-off ramp
         end_world, end_vel = np.asarray(start, dtype=np.float64), np.zeros(3)
+        self.next_start = (end_world, end_vel)
         pending: dict[str, Any] | None = None
         self.notifier.status("mission")
         k = 0
@@ -407,6 +420,7 @@ class FlightDaemon(StopLadder):
             self.last_inference_s = time.monotonic() - t_decide
             action, q = decision.action, decision.q
             prim = ActivePrimitive(self.prims, action, end_world, end_vel, inputs.yaw_rad, time.monotonic())
+            self.next_start = (prim.end_world_m, prim.end_vel_world_m_s)  # before any await: preparations
             self.decision_t = t_decide
             self.trajectory = prim
             self.new_trajectory.set()

@@ -54,6 +54,13 @@ class PreparedFrame:
     """Depth-lane features of the history's last k_d - 1 inputs and this one, float32 (64,)."""
     history_version: int
     """``ObservationHistory.version`` they were computed against."""
+    allowed: NDArray[np.bool_] | None = None
+    """The shield's verdict for the next step, when prepared with the vehicle's motion (else None:
+    the step boundary computes it)."""
+    clearance_m: NDArray[np.float64] | None = None
+    """The shield's clearance (m) of every primitive, with ``allowed``."""
+    memory: PointMemory | None = None
+    """The shield's memory with this view added, committed when the frame is decided on."""
 
 
 @dataclass(frozen=True)
@@ -111,15 +118,26 @@ class Decider:
         """Loop side: a copy of the history for one preparation."""
         return self.history.copy()
 
-    def prepare(self, frame: DepthFrame, history: ObservationHistory) -> PreparedFrame:
+    def prepare(
+        self,
+        frame: DepthFrame,
+        history: ObservationHistory,
+        motion: Motion | None = None,
+        memory: PointMemory | None = None,
+    ) -> PreparedFrame:
         """Executor side: preprocess ``frame``, run the depth lane on ``history`` (a snapshot) plus
-        this input, and keep the result as the newest prepared frame.
+        this input, and keep the result as the newest prepared frame. With the shield on and the
+        vehicle's ``motion`` now, also its verdict for the next step, from ``memory`` (the
+        decider's memory when the snapshot was taken; memories are never mutated once published).
 
         Raises :class:`quadnav_onboard.preprocess.DepthFrameError` for an unusable frame.
         """
         depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
         features = self.policy.depth_features(history.depth_with(depth_in))
-        prepared = PreparedFrame(frame, depth_in, features, history.version)
+        allowed = clearance = after = None
+        if memory is not None and motion is not None and self.shield.enabled:
+            allowed, clearance, after = self._verdict(memory, depth_in, motion)
+        prepared = PreparedFrame(frame, depth_in, features, history.version, allowed, clearance, after)
         self.prepared = prepared
         return prepared
 
@@ -141,19 +159,23 @@ class Decider:
         among the primitives the shield allows from ``motion`` (required when the shield is on)."""
         if prepared.history_version != self.history.version:
             raise RuntimeError("decide() with a frame prepared against an older history")
-        self.history.push(prepared.depth_input, rel_pos_body_m)
         allowed = clearance = None
         if self.memory is not None:
-            if motion is None:
+            if prepared.memory is not None:  # verdict prepared with the frame, off the loop
+                allowed, clearance, self.memory = prepared.allowed, prepared.clearance_m, prepared.memory
+            elif motion is None:
                 raise ValueError("the shield is on: decide() needs the vehicle's motion")
-            allowed, clearance = self._shield(prepared.depth_input, motion)
+            else:
+                allowed, clearance, self.memory = self._verdict(self.memory, prepared.depth_input, motion)
+        self.history.push(prepared.depth_input, rel_pos_body_m)
         action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed)
         return Decision(action, q, prepared.depth_input, path, allowed, clearance)
 
-    def _shield(self, depth_input: NDArray[np.float32], m: Motion) -> tuple[NDArray, NDArray]:
-        """Remember this view and check every primitive against what was seen (as the sim does)."""
-        cfg, mem = self.shield, self.memory
-        assert mem is not None
+    def _verdict(
+        self, memory: PointMemory, depth_input: NDArray[np.float32], m: Motion
+    ) -> tuple[NDArray, NDArray, PointMemory]:
+        """A new memory with this view, and every primitive checked against it (as the sim does)."""
+        cfg, mem = self.shield, memory.copy()
         pos, yaw = m.pos_world_m[None], np.array([m.yaw_rad])
         mem.add([0], depth_input[None], pos, yaw)
         samples = primitive_samples(
@@ -162,4 +184,4 @@ class Decider:
         )
         clearance = primitive_clearance(samples, mem.points, cfg)
         seen = primitive_seen_free(samples, mem.depth_m, mem.pose, pos, cfg) if cfg.require_seen else None
-        return allowed_actions(clearance, cfg, seen)[0], clearance[0]
+        return allowed_actions(clearance, cfg, seen)[0], clearance[0], mem

@@ -166,7 +166,14 @@ class Loops:
         """Preparation of ``frame`` in the DQN executor, against a snapshot of the history now."""
         decider = self.decider  # type: ignore[attr-defined]
         loop = asyncio.get_running_loop()
-        fut = loop.run_in_executor(self._executor, decider.prepare, frame, decider.snapshot())  # type: ignore[attr-defined]
+        fut = loop.run_in_executor(
+            self._executor,  # type: ignore[attr-defined]
+            decider.prepare,
+            frame,
+            decider.snapshot(),
+            self.motion_now(),  # type: ignore[attr-defined]
+            decider.memory,
+        )
         self._preparing = fut
         return fut
 
