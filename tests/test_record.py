@@ -216,3 +216,23 @@ def test_calls_from_several_threads_are_all_recorded(tmp_path):
     assert len(events) == 1200
     for i in range(4):
         assert sorted(int(e["message"]) for e in events if e["kind"] == f"w{i}") == list(range(300))
+
+
+def test_the_shields_verdict_is_recorded_with_its_step_and_absent_without_it(tmp_path):
+    """A step flown with the depth safety filter carries which primitives it allowed and their
+    clearances; a step without it has neither key."""
+    path = tmp_path / "f.mcap"
+    allowed = np.arange(18) % 3 != 0
+    clearance = np.linspace(0.1, 1.5, 18)
+    common = dict(
+        q_values=np.zeros(18), rel_pos_body_m=[1, 0, 0], moving_setpoint_world_m=[1, 0, 2],
+        pos_world_m=[0, 0, 2], reward=0.1, reward_terms={}, progress_m=0.0, deviation_m=0.0, latency_ms=1.0,
+    )
+    with FlightRecorder(path, metadata={}) as rec:
+        rec.step(1.0, step=0, action=1, shield_allowed=allowed, shield_clearance_m=clearance, **common)
+        rec.step(2.0, step=1, action=2, **common)
+        rec.close("goal_reached", {}, t_mono_s=3.0)
+    steps = read_record(path).steps
+    assert steps[0]["shield_allowed"] == allowed.tolist()
+    np.testing.assert_allclose(steps[0]["shield_clearance_m"], clearance)
+    assert "shield_allowed" not in steps[1] and "shield_clearance_m" not in steps[1]

@@ -437,6 +437,8 @@ class FlightDaemon(StopLadder):
                 "inputs": inputs,
                 "pos": pos,
                 "frame_age_s": frame_age_s,
+                "allowed": decision.allowed,
+                "clearance_m": decision.clearance_m,
             }
             log.info(
                 "step",

@@ -68,6 +68,8 @@ class StopLadder(Loops):
             progress_m=float(self.path.progress_m(pos)),
             deviation_m=dev,
             latency_ms=self.decision_latency_last_s * 1e3,
+            shield_allowed=p.get("allowed"),
+            shield_clearance_m=p.get("clearance_m"),
         )
 
     # --- stop ----------------------------------------------------------------------------------

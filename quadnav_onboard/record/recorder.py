@@ -239,6 +239,8 @@ class FlightRecorder:
         progress_m: float,
         deviation_m: float,
         latency_ms: float,
+        shield_allowed: ArrayLike | None = None,
+        shield_clearance_m: ArrayLike | None = None,
     ) -> None:
         """One planner decision (see :func:`schemas.encode_step` for units and frames)."""
         decision = {
@@ -253,6 +255,8 @@ class FlightRecorder:
             "progress_m": float(progress_m),
             "deviation_m": float(deviation_m),
             "latency_ms": float(latency_ms),
+            "shield_allowed": None if shield_allowed is None else np.array(shield_allowed, dtype=bool),
+            "shield_clearance_m": None if shield_clearance_m is None else np.array(shield_clearance_m),
         }
         self._put("step", t_mono_s, decision)
 

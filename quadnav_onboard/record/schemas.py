@@ -129,6 +129,16 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         progress_m={"type": "number", "description": "arc length of the closest path point (m)"},
         deviation_m={"type": "number", "description": "distance to the rough path (m)"},
         latency_ms={"type": "number", "description": "depth capture to setpoint sent (ms)"},
+        shield_allowed={
+            "type": "array",
+            "items": {"type": "boolean"},
+            "description": "primitives the depth safety filter allowed (absent when it is off)",
+        },
+        shield_clearance_m={
+            "type": "array",
+            "items": {"type": "number"},
+            "description": "the filter's clearance (m) of every primitive (absent when it is off)",
+        },
     ),
     "quadnav.Setpoint": _obj(
         "quadnav.Setpoint",
@@ -327,9 +337,17 @@ def encode_step(
     progress_m: float,
     deviation_m: float,
     latency_ms: float,
+    shield_allowed: ArrayLike | None = None,
+    shield_clearance_m: ArrayLike | None = None,
 ) -> dict[str, Any]:
-    """One planner decision as quadnav.Step."""
-    return {
+    """One planner decision as quadnav.Step (the shield's verdict only when it was on)."""
+    shield = {}
+    if shield_allowed is not None:
+        shield["shield_allowed"] = [bool(a) for a in np.asarray(shield_allowed).reshape(-1)]
+    if shield_clearance_m is not None:
+        clearance = np.asarray(shield_clearance_m, dtype=np.float64).reshape(-1)
+        shield["shield_clearance_m"] = to_jsonable(clearance)
+    return shield | {
         "timestamp": _stamp(t_mono_s),
         "step": int(step),
         "action": int(action),
