@@ -39,6 +39,7 @@ __all__ = [
     "primitive_samples",
     "primitive_seen_free",
     "shield_config_from_meta",
+    "shield_verdict",
 ]
 
 INPUT_SIZE = 32
@@ -406,3 +407,30 @@ def allowed_actions(
     none = ~ok.any(axis=-1, keepdims=True)
     best = c >= c.max(axis=-1, keepdims=True) - 1e-9
     return np.where(none, best, ok)
+
+
+def shield_verdict(
+    prims: PrimitiveSet,
+    points_world_m: ArrayLike,
+    view_depth_m: ArrayLike,
+    view_pose: ArrayLike,
+    start_world_m: ArrayLike,
+    start_vel_world_m_s: ArrayLike,
+    yaw_rad: ArrayLike,
+    pos_world_m: ArrayLike,
+    vel_world_m_s: ArrayLike,
+    cfg: ShieldConfig = ShieldConfig(),
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """The whole check for N vehicles, as the env and the flight daemon both run it: the allowed
+    primitives (N, A) and their clearances (m, (N, A)). ``points_world_m``, ``view_depth_m`` and
+    ``view_pose`` are a :class:`PointMemory`'s arrays (rows of these N vehicles), the view of this
+    decision already added; the rest as in :func:`primitive_samples`."""
+    samples = primitive_samples(
+        prims, start_world_m, start_vel_world_m_s, yaw_rad, cfg,
+        pos_world_m=pos_world_m, vel_world_m_s=vel_world_m_s,
+    )
+    clearance = primitive_clearance(samples, points_world_m, cfg)
+    seen = None
+    if cfg.require_seen:
+        seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)
+    return allowed_actions(clearance, cfg, seen), clearance

@@ -31,14 +31,7 @@ from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.primitives import bezier_position, bezier_velocity
 from quadnav_onboard.reward import RewardParams, reward
-from quadnav_onboard.shield import (
-    PointMemory,
-    ShieldConfig,
-    allowed_actions,
-    primitive_clearance,
-    primitive_samples,
-    primitive_seen_free,
-)
+from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_verdict
 from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_network_inputs
@@ -176,18 +169,11 @@ class VecQuadNavEnv:
         if new:
             self.memory.clear(ids)
         self.memory.add(ids, depth, self.pos_m[ids], yaw)
-        cfg = self.config.shield
-        samples = primitive_samples(
-            self.prims, self.cmd_pos_m[ids], self.cmd_vel_m_s[ids], yaw, cfg,
-            pos_world_m=self.pos_m[ids], vel_world_m_s=self.vel_m_s[ids],
+        mem = self.memory
+        self.allowed[ids], self.clearance_m[ids] = shield_verdict(
+            self.prims, mem.points[ids], mem.depth_m[ids], mem.pose[ids], self.cmd_pos_m[ids],
+            self.cmd_vel_m_s[ids], yaw, self.pos_m[ids], self.vel_m_s[ids], self.config.shield,
         )
-        self.clearance_m[ids] = primitive_clearance(samples, self.memory.points[ids], cfg)
-        seen = None
-        if cfg.require_seen:
-            seen = primitive_seen_free(
-                samples, self.memory.depth_m[ids], self.memory.pose[ids], self.pos_m[ids], cfg
-            )
-        self.allowed[ids] = allowed_actions(self.clearance_m[ids], cfg, seen)
 
     def _stop_at_contact(
         self, world: World, ids: NDArray[np.int64], collided: NDArray, trail: NDArray

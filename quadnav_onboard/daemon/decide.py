@@ -25,15 +25,7 @@ from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.primitives import PrimitiveSet
-from quadnav_onboard.shield import (
-    PointMemory,
-    ShieldConfig,
-    allowed_actions,
-    primitive_clearance,
-    primitive_samples,
-    primitive_seen_free,
-    shield_config_from_meta,
-)
+from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_config_from_meta, shield_verdict
 from quadnav_onboard.sources.base import DepthFrame
 
 __all__ = ["Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
@@ -178,10 +170,8 @@ class Decider:
         cfg, mem = self.shield, memory.copy()
         pos, yaw = m.pos_world_m[None], np.array([m.yaw_rad])
         mem.add([0], depth_input[None], pos, yaw)
-        samples = primitive_samples(
-            self.prims, m.start_world_m[None], m.start_vel_world_m_s[None], yaw, cfg,
-            pos_world_m=pos, vel_world_m_s=m.vel_world_m_s[None],
+        allowed, clearance = shield_verdict(
+            self.prims, mem.points, mem.depth_m, mem.pose, m.start_world_m[None],
+            m.start_vel_world_m_s[None], yaw, pos, m.vel_world_m_s[None], cfg,
         )
-        clearance = primitive_clearance(samples, mem.points, cfg)
-        seen = primitive_seen_free(samples, mem.depth_m, mem.pose, pos, cfg) if cfg.require_seen else None
-        return allowed_actions(clearance, cfg, seen)[0], clearance[0], mem
+        return allowed[0], clearance[0], mem
