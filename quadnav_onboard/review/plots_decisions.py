@@ -56,10 +56,15 @@ def fig_decisions(rec: FlightRecord) -> Figure:
     ax.scatter(
         steps, act, s=40, facecolors="none", edgecolors="#ff3030", linewidths=1.6, label="chosen action"
     )
+    veto = [(s["step"], a) for s in rec.steps for a, ok in enumerate(s.get("shield_allowed") or []) if not ok]
+    if veto:
+        vs, va = zip(*veto, strict=True)
+        ax.scatter(vs, va, s=14, marker="x", color="white", linewidths=0.9, label="vetoed by the filter")
     ax.set_yticks(range(q.shape[1]))
     ax.set_yticklabels([action_label(a) for a in range(q.shape[1])], fontsize=7, family="monospace")
     ax.set_ylabel("action (F fwd, L/R left/right, U/D up/down)")
-    ax.set_title("Q-values per decision (colour) and the chosen primitive (red ring)")
+    title = "Q-values per decision (colour) and the chosen primitive (red ring)"
+    ax.set_title(title + (", primitives the depth safety filter vetoed (x)" if veto else ""))
     legend(ax, loc="upper right", fontsize=8)
     fig.colorbar(im, ax=ax, label="Q-value", pad=0.01)
     axes[1].bar(steps, rec.step_array("reward"), color="#2ca02c")
