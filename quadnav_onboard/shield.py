@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from quadnav_onboard.frames import body_to_world, world_to_body
+from quadnav_onboard.jit import CAN_CACHE
 from quadnav_onboard.primitives import PrimitiveSet, bezier_position, bezier_velocity
 
 __all__ = [
@@ -249,7 +250,7 @@ def _predict_tracking(
     return out, v_end
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CAN_CACHE, nogil=True)
 def _track(
     pos: NDArray, vel: NDArray, cmd: NDArray, vcmd: NDArray, dt: float, every: int, w: float, amax: float,
     out: NDArray, v_end: NDArray,
@@ -278,7 +279,7 @@ def _track(
             v_end[i, j, 0], v_end[i, j, 1], v_end[i, j, 2] = v0, v1, v2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CAN_CACHE, nogil=True)
 def _min_distance(samples: NDArray, points: NDArray, cap: float, out: NDArray) -> None:  # pragma: no cover
     n, a, s = samples.shape[0], samples.shape[1], samples.shape[2]
     p = points.shape[1]
@@ -326,7 +327,7 @@ def primitive_clearance(
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CAN_CACHE, nogil=True)
 def _seen_free(
     samples: NDArray, depth_m: NDArray, pose: NDArray, pos: NDArray, tan_h: float, tan_v: float,
     margin: float, near: float, out: NDArray,

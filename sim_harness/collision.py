@@ -18,7 +18,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_harness.jit import CAN_CACHE
+from quadnav_onboard.jit import CAN_CACHE
 from sim_harness.world import World
 
 __all__ = ["DEFAULT_TOL_M", "clearance_m", "collides", "sweep_collides"]

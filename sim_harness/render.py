@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from quadnav_onboard.frames import quat_to_rotmat, rotmat_yaw
+from quadnav_onboard.jit import CAN_CACHE
 from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig
-from sim_harness.jit import CAN_CACHE
 from sim_harness.noise import DepthNoise, apply_depth_noise
 from sim_harness.world import Geometry, World
 

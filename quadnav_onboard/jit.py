@@ -1,4 +1,5 @@
-"""numba settings shared by the sim harness's compiled kernels (render, collision)."""
+"""numba settings shared by every compiled kernel: the depth safety filter's, and the sim
+harness's render and collision kernels."""
 
 from __future__ import annotations
 
