@@ -76,6 +76,9 @@ class ShieldConfig:
     """Also veto primitives that fly into space no remembered view saw to be free (beside or below
     the camera's field of view, behind obstacles). Safer in principle, but the planner then often
     hovers in place until the step limit (docs/results.md); off by default."""
+    seen_level_tol_m: float = math.inf
+    """Without ``require_seen``: samples more than this (m) above or below the vehicle must still
+    lie in space a view saw free (climbs and descents into the unseen floor or ceiling); inf = off."""
     seen_margin_m: float = 0.3
     """A sample counts as seen free when it lies this far (m) in front of the measured depth."""
     near_m: float = 0.4
@@ -330,7 +333,7 @@ def primitive_clearance(
 @numba.njit(cache=CAN_CACHE, nogil=True)
 def _seen_free(
     samples: NDArray, depth_m: NDArray, pose: NDArray, pos: NDArray, tan_h: float, tan_v: float,
-    margin: float, near: float, out: NDArray,
+    margin: float, near: float, level_tol: float, out: NDArray,
 ) -> None:  # pragma: no cover
     n, a, s = samples.shape[0], samples.shape[1], samples.shape[2]
     k, res = depth_m.shape[1], depth_m.shape[2]
@@ -342,6 +345,8 @@ def _seen_free(
                 dx0, dy0, dz0 = x - pos[i, 0], y - pos[i, 1], z - pos[i, 2]
                 if dx0 * dx0 + dy0 * dy0 + dz0 * dz0 <= near * near:
                     continue  # where the vehicle is now is free
+                if abs(dz0) <= level_tol:
+                    continue  # only climbs and descents must be seen (level_tol = inf: none)
                 seen = False
                 for f in range(k):
                     if pose[i, f, 0] != pose[i, f, 0]:
@@ -388,6 +393,7 @@ def primitive_seen_free(
         math.tan(math.radians(cfg.vfov_deg) / 2),
         cfg.seen_margin_m,
         cfg.near_m,
+        -1.0 if cfg.require_seen else cfg.seen_level_tol_m,
         out,
     )
     return out
@@ -432,6 +438,6 @@ def shield_verdict(
     )
     clearance = primitive_clearance(samples, points_world_m, cfg)
     seen = None
-    if cfg.require_seen:
+    if cfg.require_seen or math.isfinite(cfg.seen_level_tol_m):
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)
     return allowed_actions(clearance, cfg, seen), clearance

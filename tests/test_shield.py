@@ -118,3 +118,22 @@ def test_checkpoint_meta_names_the_shield_or_means_none():
     assert cfg.enabled and cfg.clearance_m == 0.6
     with pytest.raises(ValueError, match="clearance"):
         shield_config_from_meta({"shield": {"enabled": True, "clearance": 0.6}})
+
+
+def test_a_level_tolerance_vetoes_climbs_and_descents_into_unseen_space_only():
+    """With ``seen_level_tol_m`` finite, the first view (8 m of free space ahead) allows level
+    primitives but not those that end a metre above or below, outside the camera's 58 deg field."""
+    cfg = ShieldConfig(enabled=True, seen_level_tol_m=0.3)
+    mem = PointMemory(1, cfg)
+    pos = np.array([[0.0, 0.0, 2.0]])
+    mem.add([0], wall_input(8.0, cfg)[None], pos, np.zeros(1))
+    from quadnav_onboard.shield import shield_verdict
+
+    still = (pos, np.zeros((1, 3)), np.zeros(1), pos, np.zeros((1, 3)))
+    allowed, _ = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, cfg)
+    for a, (f, lat, v) in enumerate(DEFAULT_DIRECTIONS):
+        if v != 0:
+            assert not allowed[0, a], (f, lat, v)
+    assert allowed[0, FORWARD] and allowed[0, HOVER]
+    off, _ = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, ON)
+    assert off.all()
