@@ -8,9 +8,15 @@ the newest one and the history has not changed since (:meth:`Decider.current`). 
 daemon prepares the newest frame first, in the executor, and then decides: the same result either
 way, since ``Policy.act_from_features(Policy.depth_features(d), r) == Policy.act(d, r)``.
 
+The depth safety filter (:mod:`quadnav_onboard.shield`, when the model flies with it) follows the
+same split: a preparation given the vehicle's motion also computes the filter's verdict for the
+next step, on a copy of the filter's memory with this view added; the step commits that memory
+and masks the head's arg-max with the verdict. Without a prepared verdict the step computes it.
+
 Threads: the history lives on the event loop (read and pushed there only); a preparation gets its
 own copy (:meth:`Decider.snapshot`), and hands its result back by replacing ``prepared`` (one
-reference), so nothing needs a lock.
+reference), so nothing needs a lock. Filter memories are never mutated once published: the loop
+replaces ``memory`` with a new one.
 """
 
 from __future__ import annotations
