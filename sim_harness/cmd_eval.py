@@ -49,7 +49,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--shield",
         choices=("model", "on", "off"),
         default="model",
-        help="depth safety filter: as the checkpoint says (default), forced on (default settings) or off",
+        help="depth safety filter: as the checkpoint says (default), forced on (its settings) or off",
     )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

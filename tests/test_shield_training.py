@@ -130,3 +130,30 @@ def test_a_shielded_run_records_its_shield_and_evaluation_flies_with_it(tmp_path
     assert env_cfg.shield.enabled and env_cfg.shield.clearance_m == cfg.shield_clearance_m
     rows = evaluate(policy_greedy_fn(policy), [_world(WALL)], 2, 0, env_cfg)
     assert len(rows) == 2 and all(r.outcome in ("goal", "crash", "deviation", "timeout") for r in rows)
+
+
+def test_ship_records_the_filter_and_eval_flies_generated_worlds_with_or_without_it(tmp_path):
+    """`quadnav-sim ship` keeps the weights and records the filter; `eval --procedural` flies
+    generated worlds and its JSON names the filter it flew with."""
+    import json
+
+    from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+    from quadnav_onboard.network import DQN
+    from sim_harness.cli import main
+
+    torch.manual_seed(0)
+    raw = save_checkpoint(tmp_path / "raw.pt", DQN(NetworkConfig()))
+    assert main(["ship", "--model", str(raw), "--out", str(tmp_path / "s.pt")]) == 0
+    shipped = load_checkpoint(tmp_path / "s.pt")
+    assert shipped.meta["shield"]["enabled"] is True
+    original = load_checkpoint(raw).model.state_dict()
+    for key, value in shipped.model.state_dict().items():
+        assert torch.equal(value, original[key])
+    for mode, enabled in (("model", True), ("off", False)):
+        out = tmp_path / f"{mode}.json"
+        args = ["eval", "--model", str(tmp_path / "s.pt"), "--procedural", "2", "--trials", "1",
+                "--max-steps", "3", "--shield", mode, "--no-progress", "--json", str(out)]
+        assert main(args) == 0
+        data = json.loads(out.read_text())
+        assert len(data["rows"]) == 2 and data["shield"]["enabled"] is enabled
+        assert all(r["world"].startswith("procgen") for r in data["rows"])
