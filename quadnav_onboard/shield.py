@@ -76,9 +76,9 @@ class ShieldConfig:
     """Also veto primitives that fly into space no remembered view saw to be free (beside or below
     the camera's field of view, behind obstacles). Safer in principle, but the planner then often
     hovers in place until the step limit (docs/results.md); off by default."""
-    seen_level_tol_m: float = math.inf
+    seen_level_tol_m: float | None = None
     """Without ``require_seen``: samples more than this (m) above or below the vehicle must still
-    lie in space a view saw free (climbs and descents into the unseen floor or ceiling); inf = off."""
+    lie in space a view saw free (climbs and descents into the unseen floor or ceiling); None = off."""
     seen_margin_m: float = 0.3
     """A sample counts as seen free when it lies this far (m) in front of the measured depth."""
     near_m: float = 0.4
@@ -393,7 +393,7 @@ def primitive_seen_free(
         math.tan(math.radians(cfg.vfov_deg) / 2),
         cfg.seen_margin_m,
         cfg.near_m,
-        -1.0 if cfg.require_seen else cfg.seen_level_tol_m,
+        -1.0 if cfg.require_seen else (math.inf if cfg.seen_level_tol_m is None else cfg.seen_level_tol_m),
         out,
     )
     return out
@@ -438,6 +438,6 @@ def shield_verdict(
     )
     clearance = primitive_clearance(samples, points_world_m, cfg)
     seen = None
-    if cfg.require_seen or math.isfinite(cfg.seen_level_tol_m):
+    if cfg.require_seen or cfg.seen_level_tol_m is not None:
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)
     return allowed_actions(clearance, cfg, seen), clearance
