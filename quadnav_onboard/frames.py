@@ -25,6 +25,7 @@ __all__ = [
     "body_to_world",
     "enu_to_ned",
     "ned_to_enu",
+    "pixel_slopes",
     "quat_from_rotmat",
     "quat_from_yaw",
     "quat_multiply",
@@ -39,6 +40,17 @@ __all__ = [
 ]
 
 _FLIP = np.array([1.0, -1.0, -1.0])
+
+
+def pixel_slopes(
+    width: int, height: int, hfov_deg: float, vfov_deg: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Body-frame slopes of a pinhole camera's pixel centres looking along body +x: ``ty`` (width,)
+    = y/x (column 0 left, +), ``tz`` (height,) = z/x (row 0 up, +). The ray through pixel (i, j)
+    is ``(1, ty[j], tz[i])``, so a hit's parameter is its z-depth."""
+    ty = np.tan(np.radians(hfov_deg) / 2) * (1.0 - 2.0 * (np.arange(width) + 0.5) / width)
+    tz = np.tan(np.radians(vfov_deg) / 2) * (1.0 - 2.0 * (np.arange(height) + 0.5) / height)
+    return ty, tz
 
 
 def wrap_angle(angle_rad: ArrayLike) -> NDArray[np.float64]:

@@ -27,8 +27,10 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quadnav_onboard.frames import body_to_world, world_to_body
+from quadnav_onboard.config import parse_config
+from quadnav_onboard.frames import body_to_world, pixel_slopes, world_to_body
 from quadnav_onboard.jit import CAN_CACHE
+from quadnav_onboard.preprocess import OUT_SIZE
 from quadnav_onboard.primitives import PrimitiveSet, bezier_position, bezier_velocity
 
 __all__ = [
@@ -43,7 +45,7 @@ __all__ = [
     "shield_verdict",
 ]
 
-INPUT_SIZE = 32
+INPUT_SIZE = OUT_SIZE
 
 
 @dataclass(frozen=True)
@@ -71,7 +73,8 @@ class ShieldConfig:
     track_accel_m_s2: float = 4.0
     """Acceleration limit (m/s^2) of that position loop (PX4's MPC_ACC_HOR_MAX-like)."""
     track_dt_s: float = 0.05
-    """Integration step (s) of the prediction."""
+    """Largest integration step (s) of the prediction (the step divides the primitive evenly
+    between the samples: 1/24 s for 1 s primitives and 8 samples)."""
     require_seen: bool = False
     """Also veto primitives that fly into space no remembered view saw to be free (beside or below
     the camera's field of view, behind obstacles). Safer in principle, but the planner then often
@@ -103,18 +106,15 @@ class ShieldConfig:
 
 def shield_config_from_meta(meta: dict, source: str = "checkpoint.meta.shield") -> ShieldConfig:
     """The shield a checkpoint was trained and evaluated with (``meta["shield"]``; off if absent)."""
-    from quadnav_onboard.config import parse_config
-
     raw = meta.get("shield")
     return ShieldConfig() if raw is None else parse_config(ShieldConfig, raw, source=source)
 
 
 def _pixel_rays(cfg: ShieldConfig) -> NDArray[np.float64]:
-    """Heading-frame rays (1024, 3) through the input's pixel centres, x component 1."""
-    n = INPUT_SIZE
-    ty = math.tan(math.radians(cfg.hfov_deg) / 2) * (1.0 - 2.0 * (np.arange(n) + 0.5) / n)
-    tz = math.tan(math.radians(cfg.vfov_deg) / 2) * (1.0 - 2.0 * (np.arange(n) + 0.5) / n)
-    rays = np.empty((n, n, 3))
+    """Heading-frame rays (1024, 3) through the input's pixel centres, x component 1 (the same
+    pinhole geometry the simulator renders the inputs with)."""
+    ty, tz = pixel_slopes(INPUT_SIZE, INPUT_SIZE, cfg.hfov_deg, cfg.vfov_deg)
+    rays = np.empty((INPUT_SIZE, INPUT_SIZE, 3))
     rays[..., 0] = 1.0
     rays[..., 1] = ty[None, :]
     rays[..., 2] = tz[:, None]

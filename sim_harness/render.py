@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quadnav_onboard.frames import quat_to_rotmat, rotmat_yaw
+from quadnav_onboard.frames import pixel_slopes, quat_to_rotmat, rotmat_yaw
 from quadnav_onboard.jit import CAN_CACHE
 from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig
 from sim_harness.noise import DepthNoise, apply_depth_noise
@@ -75,10 +75,7 @@ class CameraModel:
         """Body-frame slopes of the pixel centres: ``ty`` (W*s,) = y/x (left +), ``tz`` (H*s,) = z/x (up +).
 
         ``supersample`` s casts s x s rays per pixel, on a regular grid inside it."""
-        w, h = self.width * supersample, self.height * supersample
-        ty = math.tan(math.radians(self.hfov_deg) / 2) * (1.0 - 2.0 * (np.arange(w) + 0.5) / w)
-        tz = math.tan(math.radians(self.vfov_deg) / 2) * (1.0 - 2.0 * (np.arange(h) + 0.5) / h)
-        return ty, tz
+        return pixel_slopes(self.width * supersample, self.height * supersample, self.hfov_deg, self.vfov_deg)
 
 
 D435_848x480 = CameraModel(848, 480)
