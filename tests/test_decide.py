@@ -14,7 +14,7 @@ from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from quadnav_onboard.shield import ShieldConfig
-from quadnav_onboard.sources.base import DepthFrame
+from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 
 
 @pytest.fixture(scope="module")
@@ -138,3 +138,14 @@ def test_a_shield_verdict_prepared_with_the_frame_equals_the_one_at_the_step_bou
         np.testing.assert_array_equal(early.allowed, late.allowed)
         np.testing.assert_allclose(early.clearance_m, late.clearance_m)
         np.testing.assert_array_equal(ahead.memory.points, at_step.memory.points)
+
+
+def test_motion_takes_the_odometrys_velocity_or_else_the_commanded_one() -> None:
+    start, start_vel = np.array([1.0, 0.0, 2.0]), np.array([1.0, 0.5, 0.0])
+    level = np.array([1.0, 0, 0, 0])
+    with_vel = OdometrySample(np.array([0.9, 0.1, 2.0]), level, 0.0, np.array([0.8, 0.2, 0.0]))
+    m = Motion.of(with_vel, start, start_vel, 0.3)
+    np.testing.assert_array_equal(m.vel_world_m_s, [0.8, 0.2, 0.0])
+    np.testing.assert_array_equal(m.pos_world_m, [0.9, 0.1, 2.0])
+    no_vel = OdometrySample(np.array([0.9, 0.1, 2.0]), level, 0.0)
+    np.testing.assert_array_equal(Motion.of(no_vel, start, start_vel, 0.3).vel_world_m_s, start_vel)

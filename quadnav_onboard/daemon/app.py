@@ -372,9 +372,8 @@ class FlightDaemon(StopLadder):
         odom, start = self.latest_odom.value, self.next_start
         if odom is None or start is None:
             return None
-        pos = np.asarray(odom.pos_world_m, dtype=np.float64)
-        vel = start[1] if odom.vel_world_m_s is None else np.asarray(odom.vel_world_m_s, dtype=np.float64)
-        return Motion(pos, vel, start[0], start[1], float(self.path.yaw_at(self.path.progress_m(pos))))
+        yaw = float(self.path.yaw_at(self.path.progress_m(np.asarray(odom.pos_world_m, dtype=np.float64))))
+        return Motion.of(odom, start[0], start[1], yaw)
 
     async def _mission(self) -> None:
         self.phase = "mission"
@@ -411,9 +410,7 @@ class FlightDaemon(StopLadder):
             except DepthFrameError as exc:
                 self.request_stop(StopReason.BAD_DEPTH, str(exc))
                 return
-            vel = odom.vel_world_m_s  # type: ignore[union-attr]
-            motion = Motion(pos, end_vel if vel is None else np.asarray(vel, dtype=np.float64), end_world,
-                            end_vel, inputs.yaw_rad)
+            motion = Motion.of(odom, end_world, end_vel, inputs.yaw_rad)  # type: ignore[arg-type]
             # the head and the shield, on the loop
             decision = self.decider.decide(prepared, inputs.rel_pos_body_m, how, motion)
             self.t_decision_start = None

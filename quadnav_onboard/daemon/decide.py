@@ -32,7 +32,7 @@ from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.primitives import PrimitiveSet
 from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_config_from_meta, shield_verdict
-from quadnav_onboard.sources.base import DepthFrame
+from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 
 __all__ = ["Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
 
@@ -75,6 +75,16 @@ class Motion:
     """Commanded velocity there, (3,)."""
     yaw_rad: float
     """Heading of this step's frame (the camera's yaw)."""
+
+    @classmethod
+    def of(
+        cls, odom: OdometrySample, start_world_m: ArrayLike, start_vel_world_m_s: ArrayLike, yaw_rad: float
+    ) -> Motion:
+        """From an odometry sample (its velocity, or the commanded one when it has none)."""
+        start_vel = np.asarray(start_vel_world_m_s, dtype=np.float64)
+        vel = start_vel if odom.vel_world_m_s is None else np.asarray(odom.vel_world_m_s, dtype=np.float64)
+        pos = np.asarray(odom.pos_world_m, dtype=np.float64)
+        return cls(pos, vel, np.asarray(start_world_m, dtype=np.float64), start_vel, float(yaw_rad))
 
 
 @dataclass(frozen=True)
