@@ -7,6 +7,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 __all__ = ["add_parser", "run"]
 
@@ -51,6 +52,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default="model",
         help="depth safety filter: as the checkpoint says (default), forced on (its settings) or off",
     )
+    p.add_argument(
+        "--shield-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one ShieldConfig field of the filter flown (repeatable; e.g. clearance_m=0.55)",
+    )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -90,11 +98,13 @@ def run(args: argparse.Namespace) -> int:
             worlds = procedural_worlds(args.procedural, args.procedural_seed)
             paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
         shield = None
-        if args.shield != "model":
-            base = shield_config_from_meta(policy.checkpoint.meta)
-            shield = dataclasses.replace(base, enabled=args.shield == "on")
+        if args.shield != "model" or args.shield_set:
+            shield = shield_config_from_meta(policy.checkpoint.meta)
+            if args.shield != "model":
+                shield = dataclasses.replace(shield, enabled=args.shield == "on")
+            shield = _override(shield, args.shield_set)
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
-    except (CheckpointError, WorldError, ConfigError) as exc:
+    except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2
     bar = tqdm(total=len(worlds), desc="eval", unit="world", disable=args.no_progress, file=sys.stderr)
@@ -131,3 +141,18 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(out, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")
     return 0
+
+
+def _override(shield: Any, pairs: list[str]) -> Any:
+    """``shield`` with ``KEY=VALUE`` overrides, validated like a config file (errors name the key)."""
+    import yaml
+
+    from quadnav_onboard.config import parse_config
+
+    data = dataclasses.asdict(shield)
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep:
+            raise ValueError(f"--shield-set {pair!r}: expected KEY=VALUE")
+        data[key.strip()] = yaml.safe_load(value)
+    return parse_config(type(shield), data, source="--shield-set")

@@ -157,3 +157,22 @@ def test_ship_records_the_filter_and_eval_flies_generated_worlds_with_or_without
         data = json.loads(out.read_text())
         assert len(data["rows"]) == 2 and data["shield"]["enabled"] is enabled
         assert all(r["world"].startswith("procgen") for r in data["rows"])
+
+
+def test_eval_shield_set_overrides_one_field_and_names_a_bad_key(tmp_path, capsys):
+    import json
+
+    from quadnav_onboard.checkpoint import save_checkpoint
+    from quadnav_onboard.network import DQN
+    from sim_harness.cli import main
+
+    model = save_checkpoint(tmp_path / "m.pt", DQN(NetworkConfig()), meta={"shield": {"enabled": True}})
+    out = tmp_path / "e.json"
+    base = ["eval", "--model", str(model), "--procedural", "1", "--trials", "1", "--max-steps", "2"]
+    base.append("--no-progress")
+    sets = ["--shield-set", "clearance_m=0.7", "--shield-set", "memory_steps=2"]
+    assert main([*base, *sets, "--json", str(out)]) == 0
+    shield = json.loads(out.read_text())["shield"]
+    assert shield["enabled"] and shield["clearance_m"] == 0.7 and shield["memory_steps"] == 2
+    assert main([*base, "--shield-set", "clearence_m=0.7"]) == 2
+    assert "clearence_m" in capsys.readouterr().err
