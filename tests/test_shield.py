@@ -137,3 +137,23 @@ def test_a_level_tolerance_vetoes_climbs_and_descents_into_unseen_space_only():
     assert allowed[0, FORWARD] and allowed[0, HOVER]
     off, _ = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, ON)
     assert off.all()
+
+
+def test_the_predicted_path_is_the_simulated_vehicles_path_within_a_few_centimetres():
+    """The filter's tracking model (its own parameters, a finer step) and the sim's kinematic quad
+    (sim_harness.quad) agree on where each primitive is flown, from a sharp reversal too."""
+    from quadnav_onboard.primitives import bezier_position, bezier_velocity
+    from sim_harness.quad import QuadParams, QuadState, track
+
+    v0 = np.array([[1.0, 1.0, 0.0]])
+    flown = primitive_samples(PRIMS, np.zeros((1, 3)), v0, np.zeros(1), ON, np.zeros((1, 3)), v0)
+    q = QuadParams()
+    k = round(PRIMS.duration_s / q.dt_s)
+    u = (np.arange(1, k + 1) / k)[:, None]
+    for a in range(PRIMS.n_actions):
+        ctrl = PRIMS.control_points(np.array([a]), v0)
+        _, trail = track(
+            QuadState(np.zeros((1, 3)), v0.copy()), bezier_position(ctrl, u), bezier_velocity(ctrl, u, 1.0), q
+        )
+        sim_end = trail[-1, 0]
+        np.testing.assert_allclose(flown[0, a, ON.samples - 1], sim_end, atol=0.05)
