@@ -128,8 +128,15 @@ def test_a_shielded_run_records_its_shield_and_evaluation_flies_with_it(tmp_path
     policy = Policy.from_path(result.model_path)
     env_cfg = env_config_for_policy(policy, max_steps=5)
     assert env_cfg.shield.enabled and env_cfg.shield.clearance_m == cfg.shield_clearance_m
-    rows = evaluate(policy_greedy_fn(policy), [_world(WALL)], 2, 0, env_cfg)
-    assert len(rows) == 2 and all(r.outcome in ("goal", "crash", "deviation", "timeout") for r in rows)
+    greedy, picks = policy_greedy_fn(policy), []
+
+    def checked(depth, rel, allowed):
+        actions = greedy(depth, rel, allowed)
+        picks.append(bool(allowed[np.arange(len(actions)), actions].all()) and not allowed.all())
+        return actions
+
+    rows = evaluate(checked, [_world(WALL)], 2, 0, env_cfg)
+    assert len(rows) == 2 and picks and all(picks)  # the wall vetoes something; never picked
 
 
 def test_ship_records_the_filter_and_eval_flies_generated_worlds_with_or_without_it(tmp_path):

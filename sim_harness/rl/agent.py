@@ -83,7 +83,8 @@ class DQNAgent:
 
     def td_target(self, batch: Batch, gamma: float) -> torch.Tensor:
         """Bootstrapped targets (B,): ``r + γ^n (1 - done) max_a' Q_target(s', a')``, the max over
-        the actions the shield allowed in s' (Double DQN: the online net picks a')."""
+        the actions the shield allowed in s' (Double DQN: the online net picks a'). The shield always
+        allows at least one action (``allowed_actions``), so the max is finite."""
         next_depth, next_rel = self._t(batch.next_depth), self._t(batch.next_rel)
         reward, done = self._t(batch.reward), self._t(batch.done)
         discount = self._t(np.power(gamma, batch.n, dtype=np.float32))
@@ -100,7 +101,6 @@ class DQNAgent:
                 v_next = q_next_target.gather(1, a_next).squeeze(1)
             else:
                 v_next = q_next_target.max(dim=1).values
-            v_next = torch.where(done > 0, torch.zeros_like(v_next), v_next)  # never -inf * 0
             return reward + discount * (1.0 - done) * v_next
 
     def update(self, batch: Batch, gamma: float) -> float:
