@@ -23,10 +23,22 @@ from quadnav_onboard.config import PrimitiveConfig, parse_config
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.primitives import PrimitiveSet
 
-__all__ = ["DEFAULT_MODEL_PATH", "Policy"]
+__all__ = ["DEFAULT_MODEL_PATH", "Policy", "masked_argmax"]
 
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parent / "models" / "default.pt"
 """The shipped checkpoint the daemon and ``quadnav-sim eval`` load by default."""
+
+
+def masked_argmax(q: ArrayLike, allowed: ArrayLike | None) -> NDArray[np.int64]:
+    """Arg-max over the last axis among the ``allowed`` actions (same shape as ``q``, bool); a row
+    with no allowed action, or ``allowed`` None, takes the arg-max over all of them. The one rule
+    the flight daemon, evaluation and training share."""
+    qa = np.asarray(q)
+    if allowed is None:
+        return np.argmax(qa, axis=-1).astype(np.int64)
+    mask = np.asarray(allowed, dtype=bool)
+    mask = mask | ~mask.any(axis=-1, keepdims=True)
+    return np.argmax(np.where(mask, qa, -np.inf), axis=-1).astype(np.int64)
 
 
 class Policy:
@@ -95,11 +107,6 @@ class Policy:
             raise ValueError(f"rel must have shape ({self.position_history}, 3), got {r.shape}")
         with torch.inference_mode():
             q = self.model.q_from_features(torch.from_numpy(f[None]), torch.from_numpy(r[None]))[0].numpy()
-        if allowed is None:
-            return int(np.argmax(q)), q
-        mask = np.asarray(allowed, dtype=bool)
-        if mask.shape != (self.n_actions,):
-            raise ValueError(f"allowed must have shape ({self.n_actions},), got {mask.shape}")
-        if not mask.any():
-            return int(np.argmax(q)), q
-        return int(np.argmax(np.where(mask, q, -np.inf))), q
+        if allowed is not None and np.shape(allowed) != (self.n_actions,):
+            raise ValueError(f"allowed must have shape ({self.n_actions},), got {np.shape(allowed)}")
+        return int(masked_argmax(q, allowed)), q

@@ -156,3 +156,13 @@ def test_policy_from_missing_path_is_a_checkpoint_error(tmp_path) -> None:
 def test_default_model_path_points_into_the_package() -> None:
     assert DEFAULT_MODEL_PATH.name == "default.pt"
     assert DEFAULT_MODEL_PATH.parent.name == "models"
+
+
+def test_masked_argmax_keeps_to_allowed_actions_row_by_row_and_falls_back_to_all() -> None:
+    """The one masking rule the daemon, eval and training share."""
+    from quadnav_onboard.policy import masked_argmax
+
+    q = np.array([[3.0, 1.0, 2.0], [3.0, 1.0, 2.0], [3.0, 1.0, 2.0]])
+    allowed = np.array([[False, True, True], [False, True, False], [False, False, False]])
+    assert masked_argmax(q, allowed).tolist() == [2, 1, 0]
+    assert masked_argmax(q, None).tolist() == [0, 0, 0]

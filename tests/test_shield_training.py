@@ -7,13 +7,13 @@ import numpy as np
 import torch
 
 from quadnav_onboard.network import NetworkConfig
-from quadnav_onboard.policy import Policy
+from quadnav_onboard.policy import Policy, masked_argmax
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import TrainConfig
-from sim_harness.rl.evaluate import env_config_for_policy, evaluate, masked_argmax, policy_greedy_fn
+from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
 from sim_harness.rl.replay import Batch, NStepAccumulator, ReplayBuffer
 from sim_harness.rl.train import train
 from sim_harness.world import parse_world

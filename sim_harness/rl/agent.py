@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from quadnav_onboard.network import DQN, NetworkConfig
+from quadnav_onboard.policy import masked_argmax
 from sim_harness.rl.replay import Batch
 
 __all__ = ["AgentConfig", "DQNAgent"]
@@ -55,9 +56,7 @@ class DQNAgent:
         ``allowed`` actions (B, n_actions) only, when given (the shield's verdict)."""
         with torch.inference_mode():
             q = self.q(self._t(depth), self._t(rel)).cpu().numpy()
-        if allowed is not None:
-            q = np.where(allowed, q, -np.inf)
-        return q.argmax(axis=1).astype(np.int64)
+        return masked_argmax(q, allowed)
 
     def _t(self, a: NDArray) -> torch.Tensor:
         return torch.as_tensor(a).to(self.device, non_blocking=True)

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav_onboard.config import PrimitiveConfig, parse_config
-from quadnav_onboard.policy import Policy
+from quadnav_onboard.policy import Policy, masked_argmax
 from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.world import World
@@ -27,7 +27,6 @@ __all__ = [
     "env_config_for_policy",
     "evaluate",
     "format_table",
-    "masked_argmax",
     "policy_greedy_fn",
     "summarize",
 ]
@@ -79,13 +78,6 @@ def env_config_for_policy(
         primitives=prims,
         preprocess=policy.preprocess_config(),
     )
-
-
-def masked_argmax(q: NDArray, allowed: NDArray[np.bool_] | None) -> NDArray[np.int64]:
-    """Arg-max over the allowed actions of each row (all actions where ``allowed`` is None)."""
-    if allowed is not None:
-        q = np.where(allowed, q, -np.inf)
-    return np.argmax(q, axis=-1).astype(np.int64)
 
 
 def policy_greedy_fn(policy: Policy) -> GreedyFn:
