@@ -4,6 +4,7 @@ shielded checkpoint flying the same shield in evaluation."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from quadnav_onboard.network import NetworkConfig
@@ -183,3 +184,25 @@ def test_eval_shield_set_overrides_one_field_and_names_a_bad_key(tmp_path, capsy
     assert shield["enabled"] and shield["clearance_m"] == 0.7 and shield["memory_steps"] == 2
     assert main([*base, "--shield-set", "clearence_m=0.7"]) == 2
     assert "clearence_m" in capsys.readouterr().err
+
+
+def test_init_model_starts_from_its_weights_and_a_mismatch_fails_before_a_run_directory(tmp_path):
+    from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+    from quadnav_onboard.config import ConfigError
+    from quadnav_onboard.network import DQN
+
+    torch.manual_seed(3)
+    start = save_checkpoint(tmp_path / "start.pt", DQN(NetworkConfig()))
+    cfg = TrainConfig(
+        name="ft", episodes=2, n_envs=2, max_steps=3, learning_starts=10_000, init_model=str(start),
+        out_dir=str(tmp_path / "runs"),
+    )
+    result = train(cfg, progress=False)  # no update happens: the weights must come through unchanged
+    got = load_checkpoint(result.model_path).model.state_dict()
+    want = load_checkpoint(start).model.state_dict()
+    assert all(torch.equal(got[k], want[k]) for k in want)
+    bad = TrainConfig(name="bad", episodes=2, n_envs=2, dueling=True, init_model=str(start),
+                      out_dir=str(tmp_path / "bad_runs"))
+    with pytest.raises(ConfigError, match="init_model"):
+        train(bad, progress=False)
+    assert not (tmp_path / "bad_runs").exists()

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+from quadnav_onboard.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
 from quadnav_onboard.config import ConfigError
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.shield import ShieldConfig
@@ -99,6 +99,19 @@ def _save_model(path: Path, agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfi
     )
 
 
+def _init_checkpoint(cfg: TrainConfig) -> Checkpoint | None:
+    """The checkpoint ``init_model`` names (None when empty); its network must be this config's."""
+    if not cfg.init_model:
+        return None
+    init = load_checkpoint(cfg.init_model)
+    if init.network != network_config_for(cfg):
+        raise ConfigError(
+            f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
+            f"this config's {network_config_for(cfg)}"
+        )
+    return init
+
+
 def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:
     return {k: v.bit_generator.state for k, v in rngs.items()}
 
@@ -128,6 +141,7 @@ def train(
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
     worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
     worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed)
+    init = _init_checkpoint(cfg) if resume is None else None  # fails before a run directory exists
     if resume is None:
         run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
         (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
@@ -137,13 +151,7 @@ def train(
         AgentConfig(cfg.learning_rate, cfg.double_dqn, cfg.target_update_interval, cfg.max_grad_norm),
         device=cfg.device,
     )
-    if cfg.init_model and resume is None:
-        init = load_checkpoint(cfg.init_model)
-        if init.network != agent.q.config:
-            raise ConfigError(
-                f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
-                f"this config's {agent.q.config}"
-            )
+    if init is not None:
         agent.q.load_state_dict(init.model.state_dict())
         agent.target.load_state_dict(init.model.state_dict())
     kd, kp = cfg.depth_history, cfg.position_history
