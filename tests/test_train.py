@@ -131,3 +131,16 @@ def test_train_command_reports_bad_input_without_a_traceback_or_a_run_dir(tmp_pa
     assert not (tmp_path / "runs").exists()
     assert main(["train", "--resume", str(tmp_path), "--no-progress"]) == 2
     assert "not a run directory" in capsys.readouterr().err
+
+
+def test_keep_every_keeps_model_snapshots_that_load(tmp_path) -> None:
+    """``keep_every`` leaves one loadable model per N episodes, the last equal to the final one."""
+    result = train(_tiny(tmp_path, checkpoint_every=100, keep_every=4), progress=False)
+    kept = sorted(p.name for p in (result.run_dir / "checkpoints").glob("ep*.pt"))
+    assert kept == ["ep000004.pt", "ep000008.pt"]
+    first = load_checkpoint(result.run_dir / "checkpoints" / "ep000004.pt")
+    last = load_checkpoint(result.run_dir / "checkpoints" / "ep000008.pt")
+    final = load_checkpoint(result.model_path)
+    assert first.meta["episodes"] == 4 and last.meta["episodes"] == 8
+    for name, tensor in final.model.state_dict().items():
+        assert torch.equal(tensor, last.model.state_dict()[name]), name

@@ -110,6 +110,9 @@ class TrainConfig:
     init). Its network shape must match this config's."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1)] = 100
     """Episodes between checkpoints (model + resumable training state)."""
+    keep_every: Annotated[int, pydantic.Field(ge=0)] = 0
+    """Episodes between model snapshots kept as ``checkpoints/ep{N}.pt`` (0 = none), so a
+    checkpoint can be chosen afterwards by an evaluation on the training worlds."""
     torch_threads: Annotated[int, pydantic.Field(ge=1)] = 1
     """torch.set_num_threads (1: on a loaded 2-core machine two OpenMP threads ran ~10x slower)."""
     sim_threads: Annotated[int, pydantic.Field(ge=0)] = 1

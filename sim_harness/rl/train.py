@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -199,6 +200,8 @@ def train(
         (run_dir / "state.json.tmp").write_text(json.dumps(state), encoding="utf-8")
         (run_dir / "state.json.tmp").replace(run_dir / "state.json")
         write_metrics(run_dir, rows)
+        if cfg.keep_every and finished % cfg.keep_every == 0:
+            shutil.copyfile(model, run_dir / "checkpoints" / f"ep{finished:06d}.pt")
         if final:
             model = _save_model(run_dir / "checkpoints" / "final.pt", agent, cfg, env_cfg, extra)
             plot_reward_curve(rows, run_dir / "reward_curve.png", f"{run_dir.name}")
@@ -249,7 +252,8 @@ def train(
             started += 1
             bar.update(1)
             bar.set_postfix(reward=f"{rows[-1]['reward']:.2f}", eps=f"{eps[i]:.2f}", refresh=False)
-            if finished % cfg.checkpoint_every == 0 and finished < cfg.episodes:
+            due = finished % cfg.checkpoint_every == 0 or (cfg.keep_every and finished % cfg.keep_every == 0)
+            if due and finished < cfg.episodes:
                 checkpoint()
             if kill_after_episodes is not None and finished >= kill_after_episodes:
                 bar.close()
