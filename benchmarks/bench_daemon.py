@@ -18,7 +18,8 @@ Figures:
     .venv/bin/python benchmarks/bench_daemon.py --out bench_daemon.json [--model CKPT.pt] [--record]
 
 ``--record``: every flight also writes its MCAP flight record (``FlightRecorder`` with the
-daemon's default settings), as ``quadnav-onboard`` does unless ``--no-record``.
+daemon's default settings, its writer in a child process), as ``quadnav-onboard`` does unless
+``--no-record``; ``--record-writer thread`` writes it from a thread of the flight process instead.
 """
 
 from __future__ import annotations
@@ -114,7 +115,12 @@ def config(max_steps: int) -> FlightConfig:
 
 
 async def fly(
-    port: int, policy: Policy, max_steps: int, cut: str | None, record: Path | None = None
+    port: int,
+    policy: Policy,
+    max_steps: int,
+    cut: str | None,
+    record: Path | None = None,
+    writer: str | None = None,
 ) -> tuple[Any, float]:
     vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=15.0)
     depth, mocap = CameraFeed(), MocapFeed(vehicle)
@@ -125,7 +131,10 @@ async def fly(
         from quadnav_onboard.record import FlightRecorder
 
         recorder = FlightRecorder(
-            record, metadata={"benchmark": "bench_daemon"}, depth_decimation=cfg.record.depth_decimation
+            record,
+            metadata={"benchmark": "bench_daemon"},
+            depth_decimation=cfg.record.depth_decimation,
+            writer=cfg.record.writer if writer is None else writer,
         )
     daemon = FlightDaemon(
         cfg, path=path, policy=policy, depth=depth, odometry=mocap, vehicle=vehicle, recorder=recorder
@@ -171,6 +180,12 @@ def main() -> None:
     ap.add_argument("--stale-runs", type=int, default=3, help="runs per stale-input reaction figure")
     ap.add_argument("--out", type=Path, default=Path("bench_daemon.json"))
     ap.add_argument("--record", action="store_true", help="write each flight's MCAP record (as in flight)")
+    ap.add_argument(
+        "--record-writer",
+        choices=("process", "thread"),
+        default=None,
+        help="where the record is written (default: the daemon's, RecordConfig.writer)",
+    )
     args = ap.parse_args()
     configure_logging(json=True, level="error")
     import torch
@@ -192,6 +207,7 @@ def main() -> None:
         "model": str(model),
         "loadavg_at_start": [round(x, 2) for x in os.getloadavg()],
         "recording": args.record,
+        "record_writer": (args.record_writer or FlightConfig().record.writer) if args.record else None,
     }
     stale: dict[str, list[float]] = {"depth": [], "odometry": []}
     runs = [("main", None)] + [(k, k) for k in ("depth", "odometry") for _ in range(args.stale_runs)]
@@ -200,7 +216,8 @@ def main() -> None:
         emu = serve(world, port)
         record = tmp / f"flight-{i}-{name}.mcap" if args.record else None
         try:
-            summary, cpu = asyncio.run(fly(port, policy, 80 if cut is None else 30, cut, record))
+            steps = 80 if cut is None else 30
+            summary, cpu = asyncio.run(fly(port, policy, steps, cut, record, args.record_writer))
         finally:
             emu.terminate()
             emu.wait(10)

@@ -56,7 +56,10 @@ def _open_recorder(cfg: Any, metadata: dict[str, str]) -> Any:
 
     name = time.strftime("flight-%Y%m%d-%H%M%S", time.gmtime()) + ".mcap"
     return FlightRecorder(
-        Path(cfg.record.directory) / name, metadata=metadata, depth_decimation=cfg.record.depth_decimation
+        Path(cfg.record.directory) / name,
+        metadata=metadata,
+        depth_decimation=cfg.record.depth_decimation,
+        writer=cfg.record.writer,
     )
 
 

@@ -39,10 +39,17 @@ def _fill(rec: FlightRecorder, n: int = 10, t0: float = 50.0) -> None:
     rec.event(t0 + 3.5, "failsafe", "link lost", level="warning", duration_s=0.5)
 
 
-def test_everything_recorded_comes_back(tmp_path):
+@pytest.fixture(params=["thread", "process"])
+def writer(request) -> str:
+    """Both writers: in a thread of this process and in a child process (the daemon's)."""
+    return request.param
+
+
+def test_everything_recorded_comes_back(tmp_path, writer):
     """Each recorder method's data is read back with the values, units and times it was given."""
     path = tmp_path / "f.mcap"
-    with FlightRecorder(path, metadata={"world": "env01", "model_sha256": "ab"}, depth_decimation=3) as rec:
+    meta = {"world": "env01", "model_sha256": "ab"}
+    with FlightRecorder(path, metadata=meta, depth_decimation=3, writer=writer) as rec:
         _fill(rec)
         rec.close("goal_reached", {"navigation_distance_m": 9.0}, t_mono_s=60.0)
     r = read_record(path)
@@ -69,10 +76,10 @@ def test_everything_recorded_comes_back(tmp_path):
     assert r.stop["summary"] == {"navigation_distance_m": 9.0}
 
 
-def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path):
+def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path, writer):
     """The stock mcap reader opens the record, CRCs hold, and topics carry Foxglove schema names."""
     path = tmp_path / "f.mcap"
-    with FlightRecorder(path, metadata={}) as rec:
+    with FlightRecorder(path, metadata={}, writer=writer) as rec:
         _fill(rec, n=3)
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
@@ -87,23 +94,24 @@ def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path):
 
 
 def _stall_writer(rec: FlightRecorder) -> tuple[threading.Event, threading.Event]:
-    """Make the writer thread block inside its first write until released."""
+    """Make the writer thread block inside its first delivery until released (a slow disk)."""
     entered, release = threading.Event(), threading.Event()
-    real = rec._write
+    real = rec._deliver
 
-    def slow(kind, t, payload):
+    def slow(batch):
         entered.set()
         release.wait(timeout=30)
-        real(kind, t, payload)
+        real(batch)
 
-    rec._write = slow  # type: ignore[method-assign]
+    rec._deliver = slow  # type: ignore[method-assign]
     return entered, release
 
 
-def test_stalled_writer_drops_depth_first_and_keeps_all_control_data(tmp_path):
+def test_stalled_writer_drops_depth_first_and_keeps_all_control_data(tmp_path, writer):
     """Disk stalled: calls still return; depth frames are dropped and counted, control data is not."""
     rec = FlightRecorder(
-        tmp_path / "f.mcap", metadata={}, depth_decimation=1, queue_size=1000, image_queue_size=4
+        tmp_path / "f.mcap", metadata={}, depth_decimation=1, queue_size=1000, image_queue_size=4,
+        writer=writer,
     )
     entered, release = _stall_writer(rec)
     rec.event(1.0, "first", "blocks the writer")
@@ -119,9 +127,9 @@ def test_stalled_writer_drops_depth_first_and_keeps_all_control_data(tmp_path):
     assert r.stop["dropped"]["depth"] == 46
 
 
-def test_control_data_is_dropped_only_when_its_queue_is_full(tmp_path):
+def test_control_data_is_dropped_only_when_its_queue_is_full(tmp_path, writer):
     """A writer stalled past ``queue_size`` control messages drops the excess and counts it apart."""
-    rec = FlightRecorder(tmp_path / "f.mcap", metadata={}, queue_size=10)
+    rec = FlightRecorder(tmp_path / "f.mcap", metadata={}, queue_size=10, writer=writer)
     entered, release = _stall_writer(rec)
     rec.event(1.0, "first", "blocks the writer")
     assert entered.wait(timeout=10)
@@ -140,7 +148,7 @@ def test_write_error_is_contained(tmp_path):
     def broken(*a, **k):
         raise OSError(28, "No space left on device")
 
-    rec._writer.add_message = broken  # type: ignore[method-assign]
+    rec._backend.sink._writer.add_message = broken  # type: ignore[union-attr]
     rec.event(1.0, "x", "y")
     rec.close("crash", {})  # waits for the writer, which failed
     assert isinstance(rec.error, OSError)
@@ -148,16 +156,19 @@ def test_write_error_is_contained(tmp_path):
     assert rec.drop_counts["failed"] >= 1
 
 
-def test_bad_input_is_counted_not_raised(tmp_path):
-    """A NaN time or a wrong-shaped image is dropped as invalid; the rest of the record is intact."""
-    with FlightRecorder(tmp_path / "f.mcap", metadata={}, depth_decimation=1) as rec:
+def test_bad_input_is_counted_not_raised(tmp_path, writer):
+    """A NaN time, a wrong-shaped image or a NaN in a message is dropped as invalid, counted in the
+    record's stop, and the rest of the record is intact."""
+    with FlightRecorder(tmp_path / "f.mcap", metadata={}, depth_decimation=1, writer=writer) as rec:
         rec.event(float("nan"), "x", "nan time")
         rec.depth(1.0, np.zeros((2, 3, 4), np.uint16))
+        rec.odometry(1.5, [np.nan, 0, 0], [1, 0, 0, 0])
         rec.event(2.0, "ok", "kept")
         rec.close("operator_stop", {})
-        assert rec.drop_counts["invalid"] == 2
+        assert rec.drop_counts["invalid"] == 3
     r = read_record(tmp_path / "f.mcap")
     assert [e["kind"] for e in r.events] == ["ok"]
+    assert r.stop["dropped"]["invalid"] == 3
 
 
 def test_unwritable_path_is_a_clear_error(tmp_path):
@@ -196,10 +207,10 @@ def test_other_mcap_files_are_refused(tmp_path):
         read_record(tmp_path)
 
 
-def test_calls_from_several_threads_are_all_recorded(tmp_path):
+def test_calls_from_several_threads_are_all_recorded(tmp_path, writer):
     """The recorder is thread-safe: events from four threads all arrive, none dropped or duplicated."""
     path = tmp_path / "f.mcap"
-    rec = FlightRecorder(path, metadata={})
+    rec = FlightRecorder(path, metadata={}, writer=writer)
 
     def worker(i: int) -> None:
         for k in range(300):

@@ -21,7 +21,7 @@ _CHILD = textwrap.dedent(
     import numpy as np
     from quadnav_onboard.record import FlightRecorder
     rec = FlightRecorder(sys.argv[1], metadata={"world": "kill-test"}, flush_interval_s=0.05,
-                         chunk_size=4096)
+                         chunk_size=4096, writer=sys.argv[2])
     k = 0
     while True:  # a flight that never ends on its own: it is killed with SIGKILL
         t = 100.0 + 0.02 * k
@@ -35,17 +35,19 @@ _CHILD = textwrap.dedent(
 )
 
 
-def test_kill_9_mid_flight_leaves_a_readable_record(tmp_path, capsys):
-    """kill -9 of a recording process: the record reads, marked cut off, decisions 0..n-1 intact."""
+@pytest.mark.parametrize("writer", ["thread", "process"])
+def test_kill_9_mid_flight_leaves_a_readable_record(tmp_path, capsys, writer):
+    """kill -9 of a recording process (and of its writer process, as a power cut or systemd's final
+    kill of the unit does): the record reads, marked cut off, decisions 0..n-1 intact."""
     path = tmp_path / "killed.mcap"
-    child = subprocess.Popen([sys.executable, "-c", _CHILD, str(path)])
+    child = subprocess.Popen([sys.executable, "-c", _CHILD, str(path), writer], start_new_session=True)
     try:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and (not path.exists() or path.stat().st_size < 20_000):
             time.sleep(0.05)
         assert path.stat().st_size >= 20_000, "the child never flushed data"
     finally:
-        os.kill(child.pid, signal.SIGKILL)
+        os.killpg(child.pid, signal.SIGKILL)
         child.wait(timeout=10)
     assert child.returncode == -signal.SIGKILL
     rec = read_record(path)

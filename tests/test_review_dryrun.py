@@ -99,8 +99,12 @@ def test_dry_run_record_reviews_to_the_row_the_daemon_printed(tmp_path):
 
 @pytest.mark.e2e
 @pytest.mark.slow
-def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path):
-    """SIGKILL of a flying dry run: the record is read up to its last chunk and the review prints a row."""
+@pytest.mark.parametrize("victims", ["all", "daemon"])
+def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path, victims):
+    """SIGKILL of a flying dry run. ``all``: the daemon and its record writer process die together
+    (power loss, systemd's final kill): the record is read up to its last chunk. ``daemon``: the
+    writer outlives it and finishes the record, stop reason ``flight_process_lost``. Either way the
+    review prints the row from the recorded decisions."""
     model = tmp_path / "straight.pt"
     constant_action_checkpoint(str(model), action=4)
     world = tmp_path / "long.yaml"
@@ -110,6 +114,7 @@ def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path):
         _dry_run_cmd(world, model, rec_dir),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )
     steps_seen = 0
     try:
@@ -120,10 +125,17 @@ def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path):
                 with contextlib.suppress(RecordError):
                     steps_seen = len(read_record(path, load_depth=False).steps)
     finally:
-        os.kill(daemon.pid, signal.SIGKILL)
+        if victims == "all":
+            os.killpg(daemon.pid, signal.SIGKILL)
+        else:
+            os.kill(daemon.pid, signal.SIGKILL)
         daemon.wait(timeout=10)
     assert steps_seen >= 4 and daemon.returncode == -signal.SIGKILL
     (path,) = rec_dir.glob("*.mcap")
+    if victims == "daemon":  # the writer process finishes the file on its own
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not read_record(path, load_depth=False).complete:
+            time.sleep(0.2)
     review = subprocess.run(
         [sys.executable, "-m", "quadnav_onboard.review.cli", str(path), "--json"],
         capture_output=True,
@@ -133,5 +145,9 @@ def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path):
     )
     assert review.returncode == 0, review.stderr
     row = json.loads(review.stdout)
-    assert row["complete"] is False and row["stop_reason"] == "(cut off)" and row["source"] == "steps"
+    if victims == "all":
+        assert row["complete"] is False and row["stop_reason"] == "(cut off)"
+    else:
+        assert row["complete"] is True and row["stop_reason"] == "flight_process_lost"
+    assert row["source"] == "steps"
     assert row["steps"] >= 4 and 2.0 < row["navigation_distance_m"] < 40.0

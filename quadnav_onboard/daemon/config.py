@@ -186,6 +186,9 @@ class RecordConfig:
     """Folder for the records (created if missing); one file per flight."""
     depth_decimation: Annotated[int, pydantic.Field(ge=1)] = 5
     """Record every N-th raw depth frame (network inputs are always recorded)."""
+    writer: Literal["process", "thread"] = "process"
+    """Where the record is encoded and written: a child process (keeps JSON, compression and disk
+    work off the flight process's GIL) or a thread of the flight process."""
 
 
 @dataclass(frozen=True)

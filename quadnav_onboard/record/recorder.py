@@ -2,8 +2,12 @@
 
 The control loop calls the recorder's methods (all take ``t_mono_s``, the ``time.monotonic()``
 time of the datum, first). Each call copies its arguments into one of two bounded queues and
-returns; a writer thread encodes (JSON, see :mod:`schemas`), compresses (zstd chunks with CRCs)
-and writes. Under pressure the recorder sheds load in this order:
+returns; a writer thread hands what is queued to the writer (:class:`~.sink.McapSink`), which
+encodes (JSON, see :mod:`schemas`), compresses (zstd chunks with CRCs) and writes. With
+``writer="process"`` (what the flight daemon uses) the encoding and writing run in a child process
+(:mod:`writer_process`), so they never hold the flight process's GIL; the writer thread then only
+pickles batches into a pipe. With ``writer="thread"`` (evaluation records, tests) they run in the
+writer thread itself. Under pressure the recorder sheds load in this order:
 
 1. raw depth is decimated at the source (``depth_decimation``: 1 frame in N is kept);
 2. kept depth frames wait in a small queue of their own; when it is full, or the control queue
@@ -14,10 +18,12 @@ and writes. Under pressure the recorder sheds load in this order:
 
 Durability: every ``flush_interval_s`` the writer closes the open chunk, flushes and (by
 default) fsyncs, so a process killed with SIGKILL, or a power cut, loses at most that interval.
-:func:`quadnav_onboard.record.reader.read_record` reads such a cut-off record.
+:func:`quadnav_onboard.record.reader.read_record` reads such a cut-off record. A writer process
+whose flight process dies without closing the record finishes it itself (stop reason
+``flight_process_lost``).
 
-A write error (disk full, unplugged) never reaches the caller: the recorder logs it once, stops
-writing and counts further calls as ``drop_counts['failed']``.
+A write error (disk full, unplugged, the writer process gone) never reaches the caller: the
+recorder logs it once, stops writing and counts further calls as ``drop_counts['failed']``.
 """
 
 from __future__ import annotations
@@ -25,23 +31,22 @@ from __future__ import annotations
 import collections
 import contextlib
 import json
-import os
+import pickle
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
-from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
 from numpy.typing import ArrayLike
 
-from quadnav_onboard import __version__
 from quadnav_onboard.logs import get_logger
-from quadnav_onboard.record import schemas as S
 from quadnav_onboard.record.protocol import NullRecorder, Recorder
+from quadnav_onboard.record.sink import Item, McapSink
 
 __all__ = ["FlightRecorder", "NullRecorder", "Recorder", "RecorderError"]  # the last three re-exported
 
@@ -67,7 +72,9 @@ class FlightRecorder:
     hash, world, ...). ``depth_decimation``: keep 1 raw depth frame in N (0 = none). ``queue_size``:
     control messages that may wait for the writer; ``image_queue_size``: depth frames that may wait.
     ``chunk_size``: bytes per MCAP chunk before compression. ``flush_interval_s``: most data (s) a
-    SIGKILL can lose. ``fsync``: also fsync on each flush (power-loss safety).
+    SIGKILL can lose. ``fsync``: also fsync on each flush (power-loss safety). ``writer``:
+    ``"thread"`` encodes and writes in a thread of this process, ``"process"`` in a child process
+    (started here; a failure to start raises :class:`RecorderError`).
     """
 
     def __init__(
@@ -81,20 +88,23 @@ class FlightRecorder:
         chunk_size: int = 256 * 1024,
         flush_interval_s: float = 1.0,
         fsync: bool = True,
+        writer: Literal["thread", "process"] = "thread",
     ) -> None:
         if depth_decimation < 0 or queue_size < 1 or image_queue_size < 1 or flush_interval_s <= 0:
             raise ValueError(
                 "depth_decimation must be >= 0, queue sizes >= 1 and flush_interval_s > 0; got "
                 f"{depth_decimation}, {queue_size}, {image_queue_size}, {flush_interval_s}"
             )
+        if writer not in ("thread", "process"):
+            raise ValueError(f"writer must be 'thread' or 'process', got {writer!r}")
         self.path = Path(path)
         self.depth_decimation = int(depth_decimation)
+        self.writer = writer
         self._queue_size = int(queue_size)
         self._image_queue_size = int(image_queue_size)
         self._flush_interval_s = float(flush_interval_s)
-        self._fsync = fsync
-        self._control: collections.deque[tuple[str, float, Any]] = collections.deque()
-        self._images: collections.deque[tuple[str, float, Any]] = collections.deque()
+        self._control: collections.deque[Item] = collections.deque()
+        self._images: collections.deque[Item] = collections.deque()
         self._cond = threading.Condition()
         self._closing = False
         self._closed = False
@@ -102,37 +112,29 @@ class FlightRecorder:
         self._stop: tuple[float, str, dict[str, Any]] | None = None
         self._depth_seen = 0
         self._drops: dict[str, int] = {"depth": 0, "control": 0, "failed": 0, "invalid": 0}
+        self._local_invalid = 0  # invalid items caught in this process (the rest: by a writer process)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.path, "wb")  # noqa: SIM115 - owned by the writer thread until close
+            file = open(self.path, "wb")  # noqa: SIM115 - handed to the writer, which closes it
         except OSError as exc:
             raise RecorderError(f"{self.path}: cannot create flight record: {exc.strerror or exc}") from None
-        self._writer = Writer(
-            self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_crcs=True
-        )
-        self._writer.start(profile="", library=f"quadnav {__version__}")
-        self._channels: dict[str, int] = {}
-        schema_ids = {
-            name: self._writer.register_schema(name, SchemaEncoding.JSONSchema, json.dumps(schema).encode())
-            for name, schema in S.SCHEMAS.items()
+        options = {
+            "metadata": {str(k): str(v) for k, v in metadata.items()},
+            "depth_decimation": self.depth_decimation,
+            "unix_minus_mono_s": time.time() - time.monotonic(),
+            "chunk_size": int(chunk_size),
+            "fsync": bool(fsync),
+            "flush_interval_s": self._flush_interval_s,
         }
-        for topic, schema_name in S.TOPICS.items():
-            self._channels[topic] = self._writer.register_channel(
-                topic, MessageEncoding.JSON, schema_ids[schema_name]
-            )
-        self._writer.add_metadata("quadnav", {str(k): str(v) for k, v in metadata.items()})
-        self._writer.add_metadata(
-            "recorder",
-            {
-                "format": S.FORMAT,
-                "format_version": str(S.FORMAT_VERSION),
-                "depth_decimation": str(self.depth_decimation),
-                "unix_minus_mono_s": repr(time.time() - time.monotonic()),
-                "library": f"quadnav {__version__}",
-            },
-        )
-        self._file.flush()
-        self._seq = 0
+        self._backend: _ThreadWriter | _ProcessWriter
+        if writer == "process":
+            self._backend = _ProcessWriter(self.path, file, options, self)
+        else:
+            try:
+                self._backend = _ThreadWriter(file, options, self._invalid_found)
+            except OSError as exc:
+                file.close()
+                raise RecorderError(f"{self.path}: cannot write flight record: {exc}") from None
         self._thread = threading.Thread(target=self._run, name="flight-recorder", daemon=True)
         self._thread.start()
 
@@ -160,6 +162,7 @@ class FlightRecorder:
         with self._cond:
             if not _valid_t(t_mono_s):
                 self._drops["invalid"] += 1
+                self._local_invalid += 1
                 _log.error("recorder_invalid_time", kind=kind, t_mono_s=repr(t_mono_s))
                 return
             t = float(t_mono_s)
@@ -300,55 +303,28 @@ class FlightRecorder:
 
     # -- writer thread -----------------------------------------------------------------------
 
-    def _encode(self, kind: str, t: float, p: Any) -> list[tuple[str, dict[str, Any]]]:
-        if kind == "depth":
-            return [("/camera/depth", S.encode_depth(t, p))]
-        if kind == "input":
-            return [("/planner/input", S.encode_network_input(t, p[0], p[1]))]
-        if kind == "odom":
-            return [("/odometry", S.encode_odometry(t, *p))]
-        if kind == "setpoint":
-            sp, pose = S.encode_setpoint(t, *p)
-            return [("/setpoint", sp), ("/setpoint/pose", pose)]
-        if kind == "path":
-            return [("/planner/path", S.encode_path(t, p))]
-        if kind == "step":
-            msg = S.encode_step(t, **p)
-            return [
-                ("/planner/step", msg),
-                ("/planner/moving_setpoint", S.encode_moving_setpoint(t, p["moving_setpoint_world_m"])),
-            ]
-        if kind == "vehicle":
-            return [("/vehicle", S.encode_vehicle(t, *p))]
-        if kind == "event":
-            return [("/events", S.encode_event(t, *p))]
-        raise ValueError(f"unknown message kind {kind!r}")
+    def _invalid_found(self, kind: str, error: str) -> None:
+        """The writer could not encode an item: count it and say what it was."""
+        with self._cond:
+            self._drops["invalid"] += 1
+        _log.error("recorder_invalid_message", kind=kind, error=error)
 
-    def _write(self, kind: str, t: float, payload: Any) -> None:
-        if kind == "metadata":
-            self._writer.add_metadata(*payload)
-            return
-        try:
-            messages = self._encode(kind, t, payload)
-        except (ValueError, TypeError) as exc:
-            with self._cond:
-                self._drops["invalid"] += 1
-            _log.error("recorder_invalid_message", kind=kind, error=str(exc))
-            return
-        t_ns = S.to_ns(t)
-        for topic, msg in messages:
-            data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
-            self._writer.add_message(
-                self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq
-            )
-            self._seq += 1
+    def _fail(self, exc: BaseException) -> None:
+        """Stop recording after a write error (logged once); what is queued is counted as lost."""
+        with self._cond:
+            if self._failed is not None:
+                return
+            self._failed = exc
+            self._drops["failed"] += len(self._control) + len(self._images)
+            self._control.clear()
+            self._images.clear()
+        _log.error("recorder_write_failed", path=str(self.path), error=repr(exc), writer=self.writer)
 
-    def _flush(self) -> None:
-        self._writer.flush()
-        if self._fsync:
-            os.fsync(self._file.fileno())
+    def _deliver(self, batch: list[Item]) -> None:
+        """Hand one batch to the writer (a test may stall this to play a slow disk)."""
+        self._backend.deliver(batch)
 
-    def _take(self) -> tuple[list[tuple[str, float, Any]], bool]:
+    def _take(self) -> tuple[list[Item], bool]:
         """Wait for work; return control items first, then at most two images, and whether to stop."""
         with self._cond:
             if not self._control and not self._images and not self._closing:
@@ -361,39 +337,158 @@ class FlightRecorder:
             return batch, done
 
     def _run(self) -> None:
-        last_flush = time.monotonic()
         try:
-            while True:
+            while self._failed is None:
                 batch, done = self._take()
-                for kind, t, payload in batch:
-                    self._write(kind, t, payload)
+                if batch:
+                    self._deliver(batch)
                 if done:
                     break
-                if time.monotonic() - last_flush >= self._flush_interval_s:
-                    self._flush()
-                    last_flush = time.monotonic()
-            assert self._stop is not None
-            t_stop, reason, summary = self._stop
-            with self._cond:
-                drops = dict(self._drops)
-            stop = S.encode_stop(t_stop, reason, summary, drops)
-            t_ns = S.to_ns(t_stop)
-            data = json.dumps(stop, separators=(",", ":"), allow_nan=False).encode()
-            self._writer.add_message(
-                self._channels["/flight/stop"], log_time=t_ns, data=data, publish_time=t_ns
-            )
-            self._writer.finish()
-            self._file.flush()
-            if self._fsync:
-                os.fsync(self._file.fileno())
+                self._backend.tick()
+            if self._failed is None:
+                assert self._stop is not None
+                t_stop, reason, summary = self._stop
+                with self._cond:
+                    drops = dict(self._drops)
+                self._backend.finish(t_stop, reason, summary, drops, self._local_invalid)
         except Exception as exc:  # a disk error must not take the flight down with it
-            self._failed = exc
-            _log.error("recorder_write_failed", path=str(self.path), error=repr(exc))
-            with self._cond:
-                self._drops["failed"] += len(self._control) + len(self._images)
-                self._control.clear()
-                self._images.clear()
+            self._fail(exc)
         finally:
-            with contextlib.suppress(OSError):
-                self._file.close()
+            self._backend.abort()
             self._closed = True
+
+
+class _ThreadWriter:
+    """Encode and write in the recorder's own writer thread."""
+
+    def __init__(self, file: Any, options: dict[str, Any], on_invalid: Any) -> None:
+        self._flush_interval_s = options["flush_interval_s"]
+        self.sink = McapSink.from_options(file, options, on_invalid)
+        self._last_flush = time.monotonic()
+
+    def deliver(self, batch: list[Item]) -> None:
+        for item in batch:
+            self.sink.write(*item)
+
+    def tick(self) -> None:
+        if time.monotonic() - self._last_flush >= self._flush_interval_s:
+            self.sink.flush()
+            self._last_flush = time.monotonic()
+
+    def finish(
+        self, t_stop: float, reason: str, summary: dict[str, Any], drops: dict[str, int], local_invalid: int
+    ) -> None:
+        self.sink.finish(t_stop, reason, summary, drops)
+
+    def abort(self) -> None:
+        self.sink.close_file()
+
+
+class _ProcessWriter:
+    """Encode and write in a child process (:mod:`writer_process`); this side pickles batches into
+    its stdin and reads its status lines in a thread of its own."""
+
+    START_TIMEOUT_S = 30.0
+
+    def __init__(self, path: Path, file: Any, options: dict[str, Any], recorder: FlightRecorder) -> None:
+        from quadnav_onboard.record import writer_process  # not at module level: see that module
+
+        self._frame = writer_process.write_frame
+        self._recorder = recorder
+        self._ready = threading.Event()
+        self._done = threading.Event()
+        self._start_error: str | None = None
+        self._child_invalid: int | None = None
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "quadnav_onboard.record.writer_process", str(file.fileno())],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                pass_fds=(file.fileno(),),
+            )
+        except OSError as exc:
+            file.close()
+            raise RecorderError(f"{path}: cannot start the recorder's writer process: {exc}") from None
+        file.close()  # the child holds it now
+        self._status = threading.Thread(target=self._read_status, name="flight-recorder-status", daemon=True)
+        self._status.start()
+        try:
+            assert self.proc.stdin is not None
+            self._frame(self.proc.stdin, ("open", options))
+        except OSError:
+            pass  # the child died at once: its status says why (below)
+        if not self._ready.wait(self.START_TIMEOUT_S) or self._start_error is not None:
+            self.abort()
+            why = self._start_error or f"no answer within {self.START_TIMEOUT_S:.0f} s"
+            raise RecorderError(f"{path}: the recorder's writer process did not start: {why}")
+
+    def _read_status(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            try:
+                msg = json.loads(line)
+            except ValueError:
+                continue
+            if "ready" in msg:
+                self._ready.set()
+            elif "invalid" in msg:
+                self._recorder._invalid_found(str(msg["invalid"]), str(msg.get("error", "")))
+            elif "failed" in msg:
+                if not self._ready.is_set():
+                    self._start_error = str(msg["failed"])
+                    self._ready.set()
+                else:
+                    self._recorder._fail(OSError(f"writer process: {msg['failed']}"))
+            elif "closed" in msg:
+                self._child_invalid = int(msg["closed"].get("invalid", 0))
+        code = self.proc.wait()
+        if not self._ready.is_set():
+            self._start_error = self._start_error or f"it exited with code {code}"
+            self._ready.set()
+        elif self._child_invalid is None and not self._recorder._closed:
+            why = f"writer process exited with code {code} before the record was closed"
+            self._recorder._fail(OSError(why))
+        self._done.set()
+
+    def deliver(self, batch: list[Item]) -> None:
+        assert self.proc.stdin is not None
+        try:
+            self._frame(self.proc.stdin, ("batch", batch))
+        except (pickle.PicklingError, TypeError, AttributeError):  # nothing was sent: find the culprit
+            kept = []
+            for item in batch:
+                try:
+                    pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
+                    kept.append(item)
+                except (pickle.PicklingError, TypeError, AttributeError) as exc:
+                    with self._recorder._cond:
+                        self._recorder._local_invalid += 1
+                    self._recorder._invalid_found(item[0], f"cannot be sent to the writer process: {exc}")
+            self._frame(self.proc.stdin, ("batch", kept))
+
+    def tick(self) -> None:
+        return None  # the child flushes on its own clock
+
+    def finish(
+        self, t_stop: float, reason: str, summary: dict[str, Any], drops: dict[str, int], local_invalid: int
+    ) -> None:
+        assert self.proc.stdin is not None
+        self._frame(self.proc.stdin, ("stop", t_stop, reason, summary, {**drops, "invalid": local_invalid}))
+        self.proc.stdin.close()
+        if not self._done.wait(timeout=10.0):
+            raise OSError("writer process did not finish the record within 10 s")
+        if self._child_invalid is None:
+            code = self.proc.returncode
+            raise OSError(f"writer process exited with code {code} without finishing the record")
+        with self._recorder._cond:
+            self._recorder._drops["invalid"] = local_invalid + self._child_invalid
+
+    def abort(self) -> None:
+        with contextlib.suppress(OSError):
+            if self.proc.stdin is not None:
+                self.proc.stdin.close()
+        try:
+            self.proc.wait(timeout=10.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
