@@ -1,0 +1,34 @@
+"""``quadnav-sim select``: the checkpoint-selection rule, flown for real on tiny budgets."""
+
+from __future__ import annotations
+
+import json
+
+from quadnav_onboard.daemon.testing import constant_action_checkpoint
+from sim_harness.cli import main
+
+
+def test_select_scores_goals_minus_crashes_on_train_and_dev_sets_only(tmp_path, capsys):
+    """Each checkpoint flies Env 1-7 at two seeds and 8 development worlds at two seeds; the score is
+    goals minus crashes; a tie goes to the checkpoint listed first; a bad one is a clear error."""
+    straight, hover, twin = tmp_path / "straight.pt", tmp_path / "hover.pt", tmp_path / "twin.pt"
+    constant_action_checkpoint(str(straight), 4)
+    constant_action_checkpoint(str(hover), 13)
+    twin.write_bytes(straight.read_bytes())
+    out = tmp_path / "sel.json"
+    argv = ["select", str(straight), str(hover), str(twin), "--trials", "1", "--max-steps", "30"]
+    argv.append("--no-progress")
+    assert main([*argv, "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    flights = {k: v["flights"] for k, v in data["scores"][0].items() if isinstance(v, dict)}
+    assert flights == {"train_seed0": 7, "train_seed1000": 7, "dev_seed0": 8, "dev_seed1": 8}
+    for s in data["scores"]:
+        parts = [v for v in s.values() if isinstance(v, dict)]
+        assert s["goals"] == sum(p["goals"] for p in parts) and s["score"] == s["goals"] - s["crashes"]
+    first, _, second = data["scores"]
+    assert second == {**first, "model": str(twin)}  # the same weights score the same
+    best = max(s["score"] for s in data["scores"])
+    assert data["chosen"] == next(s["model"] for s in data["scores"] if s["score"] == best)
+    assert "<- chosen" in capsys.readouterr().out
+    assert main(["select", str(tmp_path / "missing.pt"), "--no-progress"]) == 2
+    assert "missing.pt" in capsys.readouterr().err
