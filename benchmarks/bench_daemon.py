@@ -146,12 +146,35 @@ async def fly(
         (depth if cut == "depth" else mocap).cut = True
 
     task = asyncio.ensure_future(cutter()) if cut else None
+    writer_pid = recorder.writer_pid if recorder is not None else None
+    writer_cpu: list[tuple[float, float]] = []
+
+    async def sample_writer_cpu() -> None:  # the record's writer process, while it lives
+        while writer_pid is not None:
+            try:
+                fields = Path(f"/proc/{writer_pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                return
+            ticks = int(fields[11]) + int(fields[12])  # utime + stime
+            writer_cpu.append((time.monotonic(), ticks / os.sysconf("SC_CLK_TCK")))
+            await asyncio.sleep(0.25)
+
+    sampler = asyncio.ensure_future(sample_writer_cpu())
     cpu0, wall0 = time.process_time(), time.monotonic()
     summary = await daemon.run()
     cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+    sampler.cancel()
     if task:
         task.cancel()
+    if len(writer_cpu) >= 2:
+        (t0, c0), (t1, c1) = writer_cpu[0], writer_cpu[-1]
+        print(f"record writer process CPU: {100 * (c1 - c0) / (t1 - t0):.1f} % of one core (sampled)")
+        WRITER_CPU.append((c1 - c0) / (t1 - t0))
     return summary, cpu
+
+
+WRITER_CPU: list[float] = []
+"""CPU of the record's writer process per flight (fraction of one core), when it is a process."""
 
 
 def serve(world: Path, port: int) -> subprocess.Popen[bytes]:
@@ -223,6 +246,8 @@ def main() -> None:
             emu.wait(10)
         if cut is None:
             results["main_run"] = {**summary.to_dict(), "daemon_cpu_fraction_of_one_core": round(cpu, 4)}
+            if WRITER_CPU:
+                results["main_run"]["record_writer_cpu_fraction_of_one_core"] = round(WRITER_CPU[-1], 4)
             if record is not None:
                 results["main_run"]["record_bytes"] = record.stat().st_size
         elif summary.hold_reaction_ms is not None:

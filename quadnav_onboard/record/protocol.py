@@ -46,6 +46,7 @@ class NullRecorder:
     dropped = 0
     drop_counts: Mapping[str, int] = {}
     path = None
+    writer_pid = None
 
     def __enter__(self) -> NullRecorder:
         return self

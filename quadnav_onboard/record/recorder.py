@@ -154,6 +154,11 @@ class FlightRecorder:
             return dict(self._drops)
 
     @property
+    def writer_pid(self) -> int | None:
+        """Process id of the writer process (``writer="process"``), else None."""
+        return self._backend.proc.pid if isinstance(self._backend, _ProcessWriter) else None
+
+    @property
     def error(self) -> BaseException | None:
         """The write error that stopped recording, if any."""
         return self._failed
