@@ -149,5 +149,6 @@ def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path, vi
         assert row["complete"] is False and row["stop_reason"] == "(cut off)"
     else:
         assert row["complete"] is True and row["stop_reason"] == "flight_process_lost"
+        assert "without closing the record" in row["detail"]
     assert row["source"] == "steps"
     assert row["steps"] >= 4 and 2.0 < row["navigation_distance_m"] < 40.0

@@ -31,6 +31,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -404,12 +405,17 @@ class _ProcessWriter:
         self._done = threading.Event()
         self._start_error: str | None = None
         self._child_invalid: int | None = None
+        # the child imports this very copy of quadnav_onboard, installed or not
+        package_root = str(Path(writer_process.__file__).resolve().parents[2])
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH", "")) if p)
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "quadnav_onboard.record.writer_process", str(file.fileno())],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 pass_fds=(file.fileno(),),
+                env=env,
             )
         except OSError as exc:
             file.close()

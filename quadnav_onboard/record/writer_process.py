@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
                 sink.finish(
                     time.monotonic(),
                     LOST_REASON,
-                    {"note": "the flight process ended without closing the record (killed or crashed)"},
+                    {"detail": "the flight process ended without closing the record (killed or crashed)"},
                     {"invalid": sink.invalid},
                 )
                 return 0
