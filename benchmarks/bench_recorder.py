@@ -4,10 +4,10 @@
 Replays a flight's data rates in real time (D435 depth 424x240 at 30 fps, odometry 120 Hz,
 setpoints 50 Hz, vehicle state 10 Hz, one decision per second with its 32x32 input) into
 :class:`FlightRecorder` and into :class:`NullRecorder`, and reports per call: the time spent in
-the call (what the control loop pays) and the lateness of each scheduled call (what the writer
-thread's GIL use costs the loop). Prints a table and writes JSON.
+the call (what the control loop pays) and the lateness of each scheduled call (what the writer's
+GIL use costs the loop). Prints a table and writes JSON.
 
-    .venv/bin/python benchmarks/bench_recorder.py --seconds 10 --out /tmp/bench_recorder.json
+    .venv/bin/python benchmarks/bench_recorder.py --seconds 10 [--writer process|thread] --out OUT.json
 """
 
 from __future__ import annotations
@@ -98,12 +98,25 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=10.0, help="real time to replay per recorder")
     p.add_argument("--decimation", type=int, default=5, help="raw depth decimation")
     p.add_argument("--out", type=Path, help="write the figures as JSON here")
+    p.add_argument(
+        "--writer",
+        choices=("thread", "process"),
+        default="process",
+        help="the recorder's writer (default: the daemon's)",
+    )
     args = p.parse_args()
-    results: dict[str, Any] = {"seconds": args.seconds, "rates_hz": RATES_HZ, "decimation": args.decimation}
+    results: dict[str, Any] = {
+        "seconds": args.seconds,
+        "rates_hz": RATES_HZ,
+        "decimation": args.decimation,
+        "writer": args.writer,
+    }
     results["null"] = run(NullRecorder(), args.seconds)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "bench.mcap"
-        rec = FlightRecorder(path, metadata={"bench": "1"}, depth_decimation=args.decimation)
+        rec = FlightRecorder(
+            path, metadata={"bench": "1"}, depth_decimation=args.decimation, writer=args.writer
+        )
         results["mcap"] = run(rec, args.seconds)
         t0 = time.perf_counter()
         rec.close("operator_stop", {})

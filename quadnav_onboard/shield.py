@@ -96,6 +96,11 @@ class ShieldConfig:
     """Depth (m) of an input value of 1.0 (the preprocessing's max range): 'nothing seen'."""
     search_radius_m: float = 1.5
     """Clearances are capped at this distance (m); points farther from every sample are ignored."""
+    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Where the depth camera sits relative to the odometry's body origin, in the heading frame
+    (m: forward, left, up). The sim's camera is at the origin; a D435 on a real airframe is
+    typically ~0.1 m forward. Remembered points and views are placed from the camera, not the
+    body origin (the network itself was trained with the camera at the origin)."""
 
     def __post_init__(self) -> None:
         if not self.clearance_m > 0 or not self.search_radius_m > self.clearance_m:
@@ -104,6 +109,8 @@ class ShieldConfig:
             raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
         if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
             raise ValueError("fields of view must be in (0, 180) deg")
+        if len(self.camera_offset_m) != 3 or not all(math.isfinite(v) for v in self.camera_offset_m):
+            raise ValueError(f"camera_offset_m must be 3 finite numbers, got {self.camera_offset_m!r}")
 
 
 def shield_config_from_meta(meta: dict, source: str = "checkpoint.meta.shield") -> ShieldConfig:
@@ -163,13 +170,16 @@ class PointMemory:
         self.pose[sel] = np.nan
 
     def add(self, ids: ArrayLike, depth_input: ArrayLike, pos_world_m: ArrayLike, yaw_rad: ArrayLike) -> None:
-        """Remember inputs (M, 32, 32) seen by vehicles ``ids`` (M,) from ``pos_world_m`` (M, 3) at
-        heading ``yaw_rad`` (M,). The oldest view is dropped, unless the vehicle is within
-        ``min_travel_m`` of its newest remembered view: then that one is replaced."""
+        """Remember inputs (M, 32, 32) seen by vehicles ``ids`` (M,) at body position
+        ``pos_world_m`` (M, 3) and heading ``yaw_rad`` (M,); the camera is ``camera_offset_m`` from
+        there. The oldest view is dropped, unless the camera is within ``min_travel_m`` of its
+        newest remembered view: then that one is replaced."""
         ids = np.asarray(ids)
         pos = np.asarray(pos_world_m, dtype=np.float64)
         yaw = np.asarray(yaw_rad, dtype=np.float64)
         depth = np.asarray(depth_input, dtype=np.float32)
+        offset = np.broadcast_to(np.asarray(self.cfg.camera_offset_m, dtype=np.float64), pos.shape)
+        pos = pos + body_to_world(offset, yaw)  # the camera's position
         pts_w = body_to_world(depth_points_heading(depth, self.cfg).astype(np.float64), yaw[:, None])
         pts_w += pos[:, None, :]
         k = INPUT_SIZE * INPUT_SIZE

@@ -157,3 +157,27 @@ def test_the_predicted_path_is_the_simulated_vehicles_path_within_a_few_centimet
         )
         sim_end = trail[-1, 0]
         np.testing.assert_allclose(flown[0, a, ON.samples - 1], sim_end, atol=0.05)
+
+
+def test_a_camera_ahead_of_the_body_origin_places_what_it_sees_ahead_too():
+    """camera_offset_m: a D435 0.1 m forward of the odometry's origin, heading 90 deg left: a wall at
+    1.2 m depth is 1.3 m from the body, in the world's +y (placing it from the body origin, 0.1 m
+    too close, errs on the safe side ahead); the view's recorded pose is the camera's."""
+    cfg = ShieldConfig(enabled=True, camera_offset_m=(0.1, 0.0, 0.05))
+    yaw = np.array([math.pi / 2])
+    pos = np.array([[2.0, 3.0, 1.5]])
+    plain, offset = PointMemory(1, ShieldConfig(enabled=True)), PointMemory(1, cfg)
+    for mem in (plain, offset):
+        mem.add([0], wall_input(1.2, cfg)[None], pos, yaw)
+    ys = offset.points[0][np.isfinite(offset.points[0, :, 1]), 1]
+    np.testing.assert_allclose(ys, 3.0 + 1.3, atol=1e-5)
+    np.testing.assert_allclose(offset.pose[0, -1, :3], [2.0, 3.1, 1.55], atol=1e-9)
+    s = primitive_samples(PRIMS, pos, np.zeros((1, 3)), yaw, cfg, pos)
+    c_plain = primitive_clearance(s, plain.points, cfg)[0, HOVER]
+    c_offset = primitive_clearance(s, offset.points, cfg)[0, HOVER]
+    assert c_plain == pytest.approx(1.2, abs=0.05) and c_offset == pytest.approx(c_plain + 0.1, abs=1e-3)
+
+
+def test_a_bad_camera_offset_is_refused():
+    with pytest.raises(ValueError, match="camera_offset_m"):
+        ShieldConfig(camera_offset_m=(0.1, float("nan"), 0.0))
