@@ -397,7 +397,9 @@ class _ProcessWriter:
     START_TIMEOUT_S = 30.0
 
     def __init__(self, path: Path, file: Any, options: dict[str, Any], recorder: FlightRecorder) -> None:
-        from quadnav_onboard.record import writer_process  # not at module level: see that module
+        # imported here, not at the top: ``python -m`` of a module that its package's __init__
+        # already imported would warn (and run it twice)
+        from quadnav_onboard.record import writer_process
 
         self._frame = writer_process.write_frame
         self._recorder = recorder
