@@ -36,7 +36,7 @@ _FLIGHT = textwrap.dedent(
         rec.step(t, step=k, action=4, q_values=np.zeros(18), rel_pos_body_m=[1, 0, 0],
                  moving_setpoint_world_m=[1, 0, 2], pos_world_m=[0.02 * k, 0, 2], reward=0.1,
                  reward_terms={}, progress_m=0.02 * k, deviation_m=0.0, latency_ms=1.0)
-        if k == 20:
+        if k == 100:  # ~0.3 s: several batches have crossed to the writer
             print("go", flush=True)
         k += 1
         time.sleep(0.002)
@@ -82,7 +82,8 @@ def test_systemctl_stop_reaches_the_whole_group_and_the_record_still_ends_with_i
 
 def test_flight_process_killed_alone_the_writer_finishes_the_record(tmp_path):
     """kill -9 of the flight process only: the writer process sees its input end, writes what it
-    was given and finishes the file, with a stop reason that says the flight process was lost."""
+    was given and finishes the file, with a stop reason that says the flight process was lost.
+    What was still queued in the flight process (at most one batch interval, 50 ms) is lost."""
     path = tmp_path / "orphan.mcap"
     flight, writer_pid = _start_flight(path)
     os.kill(flight.pid, signal.SIGKILL)

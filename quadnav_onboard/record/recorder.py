@@ -73,7 +73,9 @@ class FlightRecorder:
     hash, world, ...). ``depth_decimation``: keep 1 raw depth frame in N (0 = none). ``queue_size``:
     control messages that may wait for the writer; ``image_queue_size``: depth frames that may wait.
     ``chunk_size``: bytes per MCAP chunk before compression. ``flush_interval_s``: most data (s) a
-    SIGKILL can lose. ``fsync``: also fsync on each flush (power-loss safety). ``writer``:
+    SIGKILL can lose. ``fsync``: also fsync on each flush (power-loss safety).
+    ``batch_interval_s``: the writer thread wakes this often while the flight runs and takes all
+    that is queued (one wake-up and one delivery per interval, not per call). ``writer``:
     ``"thread"`` encodes and writes in a thread of this process, ``"process"`` in a child process
     (started here; a failure to start raises :class:`RecorderError`).
     """
@@ -90,12 +92,15 @@ class FlightRecorder:
         flush_interval_s: float = 1.0,
         fsync: bool = True,
         writer: Literal["thread", "process"] = "thread",
+        batch_interval_s: float = 0.05,
     ) -> None:
         if depth_decimation < 0 or queue_size < 1 or image_queue_size < 1 or flush_interval_s <= 0:
             raise ValueError(
                 "depth_decimation must be >= 0, queue sizes >= 1 and flush_interval_s > 0; got "
                 f"{depth_decimation}, {queue_size}, {image_queue_size}, {flush_interval_s}"
             )
+        if not 0 < batch_interval_s <= flush_interval_s:
+            raise ValueError(f"batch_interval_s must be in (0, flush_interval_s], got {batch_interval_s}")
         if writer not in ("thread", "process"):
             raise ValueError(f"writer must be 'thread' or 'process', got {writer!r}")
         self.path = Path(path)
@@ -104,6 +109,7 @@ class FlightRecorder:
         self._queue_size = int(queue_size)
         self._image_queue_size = int(image_queue_size)
         self._flush_interval_s = float(flush_interval_s)
+        self._batch_interval_s = float(batch_interval_s)
         self._control: collections.deque[Item] = collections.deque()
         self._images: collections.deque[Item] = collections.deque()
         self._cond = threading.Condition()
@@ -185,7 +191,8 @@ class FlightRecorder:
                     self._drops["control"] += 1
                     return
                 self._control.append((kind, t, payload))
-            self._cond.notify()
+                if len(self._control) == self._queue_size // 4:
+                    self._cond.notify()  # a burst: drain now rather than at the next batch
 
     def depth(self, t_mono_s: float, depth_mm: np.ndarray) -> None:
         """A raw depth frame (uint16 mm, (H, W), 0 = invalid); 1 in ``depth_decimation`` is kept."""
@@ -331,10 +338,11 @@ class FlightRecorder:
         self._backend.deliver(batch)
 
     def _take(self) -> tuple[list[Item], bool]:
-        """Wait for work; return control items first, then at most two images, and whether to stop."""
+        """Wait one batch interval (less on a burst or at close); return the control items queued,
+        then at most two images, and whether to stop."""
         with self._cond:
-            if not self._control and not self._images and not self._closing:
-                self._cond.wait(timeout=self._flush_interval_s)
+            if not self._closing:
+                self._cond.wait(timeout=self._batch_interval_s)
             batch = list(self._control)
             self._control.clear()
             for _ in range(min(2, len(self._images))):
