@@ -144,3 +144,22 @@ def test_keep_every_keeps_model_snapshots_that_load(tmp_path) -> None:
     assert first.meta["episodes"] == 4 and last.meta["episodes"] == 8
     for name, tensor in final.model.state_dict().items():
         assert torch.equal(tensor, last.model.state_dict()[name]), name
+
+
+def test_learning_rate_is_flat_through_the_ramp_then_falls_linearly_to_lr_end(tmp_path) -> None:
+    from sim_harness.rl.train import learning_rate_at
+
+    cfg = _tiny(tmp_path, episodes=100, schedule_fraction=0.6, learning_rate=1e-3, lr_end=1e-4)
+    assert learning_rate_at(0, cfg) == learning_rate_at(60, cfg) == 1e-3
+    assert learning_rate_at(80, cfg) == pytest.approx(5.5e-4)
+    assert learning_rate_at(100, cfg) == pytest.approx(1e-4)
+    assert learning_rate_at(500, cfg) == pytest.approx(1e-4)
+    assert learning_rate_at(99, _tiny(tmp_path, episodes=100, learning_rate=1e-3)) == 1e-3  # lr_end None
+
+
+def test_lr_end_reaches_the_optimiser(tmp_path) -> None:
+    """A tiny run with lr_end: the optimiser's step size at the end lies between lr_end and the start."""
+    result = train(_tiny(tmp_path, schedule_fraction=0.25, learning_rate=1e-3, lr_end=1e-5), progress=False)
+    state = torch.load(result.run_dir / "state.pt", weights_only=True)
+    lr = state["agent"]["optimizer"]["param_groups"][0]["lr"]
+    assert 1e-5 <= lr < 1e-3

@@ -73,6 +73,9 @@ class TrainConfig:
     """Fraction of the episodes over which ε and γ ramp linearly; flat afterwards."""
     learning_rate: Annotated[float, pydantic.Field(gt=0)] = 1e-3
     """Adam step size (PyTorch's default, as in the paper)."""
+    lr_end: Annotated[float, pydantic.Field(gt=0)] | None = None
+    """Step size at the last episode (beyond the paper): from the end of the ε/γ ramp on, it falls
+    linearly from ``learning_rate`` to this; None = constant (the paper)."""
     batch_size: Annotated[int, pydantic.Field(ge=1)] = 64
     """Minibatch size of one gradient update."""
     buffer_size: Annotated[int, pydantic.Field(ge=1)] = 50_000

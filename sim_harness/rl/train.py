@@ -35,7 +35,7 @@ from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, r
 from sim_harness.rl.schedules import LinearSchedule
 from sim_harness.world import load_world, paper_world_path
 
-__all__ = ["TrainResult", "env_config_for", "network_config_for", "train"]
+__all__ = ["TrainResult", "env_config_for", "learning_rate_at", "network_config_for", "train"]
 
 
 @dataclasses.dataclass
@@ -116,6 +116,17 @@ def _init_checkpoint(cfg: TrainConfig) -> Checkpoint | None:
 def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:
     return {k: v.bit_generator.state for k, v in rngs.items()}
 
+
+
+def learning_rate_at(episode: int, cfg: TrainConfig) -> float:
+    """The step size at ``episode``: ``learning_rate`` through the ε/γ ramp, then linear to
+    ``lr_end`` at the last episode (constant when ``lr_end`` is None)."""
+    if cfg.lr_end is None:
+        return cfg.learning_rate
+    ramp = cfg.schedule_fraction * cfg.episodes
+    tail = max(cfg.episodes - ramp, 1.0)
+    p = min(max((episode - ramp) / tail, 0.0), 1.0)
+    return cfg.learning_rate + (cfg.lr_end - cfg.learning_rate) * p
 
 def train(
     config: TrainConfig | None = None,
@@ -208,6 +219,10 @@ def train(
         return model
 
     while finished < cfg.episodes:
+        if cfg.lr_end is not None:
+            lr = learning_rate_at(finished, cfg)
+            for group in agent.optimizer.param_groups:
+                group["lr"] = lr
         gamma = gamma_of(finished)
         eps = np.array([eps_of(e) for e in env_episode])
         actions = agent.act(depth, rel, eps, act_rng, env.allowed if cfg.shield else None)
