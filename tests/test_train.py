@@ -163,3 +163,13 @@ def test_lr_end_reaches_the_optimiser(tmp_path) -> None:
     state = torch.load(result.run_dir / "state.pt", weights_only=True)
     lr = state["agent"]["optimizer"]["param_groups"][0]["lr"]
     assert 1e-5 <= lr < 1e-3
+
+
+def test_optional_fields_have_flags_of_their_type() -> None:
+    """``--lr-end`` (a ``float | None`` field) parses as a float on the command line."""
+    from sim_harness.cli import build_parser
+    from sim_harness.rl.config import config_from_args
+
+    args = build_parser().parse_args(["train", "--lr-end", "0.00003", "--episodes", "10"])
+    assert config_from_args(args).lr_end == pytest.approx(3e-5)
+    assert config_from_args(build_parser().parse_args(["train"])).lr_end is None

@@ -173,6 +173,9 @@ def add_dataclass_flags(parser: argparse.ArgumentParser, cls: type) -> None:
     for f in dataclasses.fields(cls):
         flag = "--" + f.name.replace("_", "-")
         tp = hints[f.name]
+        args = typing.get_args(tp)
+        if type(None) in args and len(args) == 2:  # X | None: the flag takes an X
+            tp = next(a for a in args if a is not type(None))
         default = f.default
         help_text = f"{docs.get(f.name, '')} (default: {default})".replace("%", "%%")
         if tp is bool:
