@@ -58,6 +58,10 @@ class RecorderError(OSError):
     """The record file cannot be created (the message names the path and the reason)."""
 
 
+_IMAGES_PER_BATCH = 4
+"""Depth frames the writer takes per batch after the control data (80/s at 50 ms batches)."""
+
+
 def _valid_t(t_mono_s: float) -> bool:
     try:
         t = float(t_mono_s)
@@ -339,13 +343,13 @@ class FlightRecorder:
 
     def _take(self) -> tuple[list[Item], bool]:
         """Wait one batch interval (less on a burst or at close); return the control items queued,
-        then at most two images, and whether to stop."""
+        then at most ``_IMAGES_PER_BATCH`` images, and whether to stop."""
         with self._cond:
             if not self._closing:
                 self._cond.wait(timeout=self._batch_interval_s)
             batch = list(self._control)
             self._control.clear()
-            for _ in range(min(2, len(self._images))):
+            for _ in range(min(_IMAGES_PER_BATCH, len(self._images))):
                 batch.append(self._images.popleft())
             done = self._closing and not self._control and not self._images
             return batch, done

@@ -112,7 +112,16 @@ def write_synthetic_flight(
         "step_duration_s": "1.0",
     }
     params = RewardParams()
-    rec = FlightRecorder(path, metadata=meta, depth_decimation=depth_decimation, fsync=False)
+    # written far faster than real time: queues that hold the whole flight, so nothing is shed
+    n_depth = int(np.ceil(last * depth_hz))
+    rec = FlightRecorder(
+        path,
+        metadata=meta,
+        depth_decimation=depth_decimation,
+        fsync=False,
+        queue_size=16 * (len(ts_a) + last) + 64,
+        image_queue_size=max(8, n_depth),
+    )
     rec.rough_path(t0_mono_s, wps)
     rec.vehicle(t0_mono_s, True, "OFFBOARD", {"local_position_ok": True, "battery_v": 16.4})
     rec.event(t0_mono_s, "mission_start", "mission started", level="info")
