@@ -45,7 +45,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--trials", type=int, default=5, help="trials per world (default 5, as in the paper)")
     p.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default 0)")
-    p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
+    p.add_argument(
+        "--max-steps",
+        type=int,
+        default=None,
+        help="step limit per flight (default 120, scaled with --primitive-scale)",
+    )
+    p.add_argument(
+        "--primitive-scale",
+        type=float,
+        default=None,
+        metavar="M",
+        help="fly primitives of M metres per axis, the moving setpoint slowed to match (real flights: "
+        "0.5, as in the paper); default: the checkpoint's",
+    )
     p.add_argument(
         "--shield",
         choices=("model", "on", "off"),
@@ -72,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
     from quadnav_onboard.shield import shield_config_from_meta
     from sim_harness.rl.evaluate import (
+        at_primitive_scale,
         env_config_for_policy,
         evaluate,
         format_table,
@@ -80,8 +94,11 @@ def run(args: argparse.Namespace) -> int:
     )
     from sim_harness.world import WorldError, load_world, paper_world_path, resolve_world_arg
 
-    if args.trials < 1 or args.max_steps < 1:
+    if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
         print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
+        return 2
+    if args.primitive_scale is not None and not args.primitive_scale > 0:
+        print("quadnav-sim eval: --primitive-scale must be > 0", file=sys.stderr)
         return 2
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
     try:
@@ -103,7 +120,9 @@ def run(args: argparse.Namespace) -> int:
             if args.shield != "model":
                 shield = dataclasses.replace(shield, enabled=args.shield == "on")
             shield = _override(shield, args.shield_set)
-        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
+        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps or 120, shield=shield)
+        if args.primitive_scale is not None:
+            env_cfg, worlds = at_primitive_scale(env_cfg, worlds, args.primitive_scale, args.max_steps)
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2
@@ -131,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
             "model_sha256": policy.checkpoint.sha256,
             "trials": args.trials,
             "seed": args.seed,
-            "max_steps": args.max_steps,
+            "max_steps": env_cfg.max_steps,
+            "primitive_scale_m": env_cfg.primitives.scale_m,
             "shield": dataclasses.asdict(env_cfg.shield),
             "worlds": [str(p) for p in paths],
             "rows": [r.to_dict() for r in rows],

@@ -104,3 +104,38 @@ def test_eval_command_reports_a_bad_world_without_a_traceback(tmp_path, capsys) 
 def test_eval_command_reports_a_missing_model(tmp_path, capsys) -> None:
     rc = main(["eval", "--model", str(tmp_path / "none.pt"), "--no-progress"])
     assert rc == 2 and "not found" in capsys.readouterr().err
+
+
+def test_at_primitive_scale_slows_the_setpoint_and_lengthens_the_step_limit() -> None:
+    """Half-size primitives: the moving setpoint still advances one primitive per step (speed
+    halved) and the step limit doubles unless given; obstacles and waypoints are untouched."""
+    from sim_harness.rl.evaluate import at_primitive_scale
+
+    w = _world("w", [{"type": "box", "center": [6, 0, 2], "size": [1, 1, 1]}])
+    cfg, (slow,) = at_primitive_scale(EnvConfig(max_steps=120), [w], 0.5)
+    assert cfg.primitives.scale_m == 0.5 and cfg.max_steps == 240
+    assert slow.path.speed_m_s == w.path.speed_m_s / 2
+    assert np.array_equal(slow.path.waypoints_m, w.path.waypoints_m) and slow.obstacles == w.obstacles
+    assert at_primitive_scale(EnvConfig(max_steps=120), [w], 0.5, max_steps=30)[0].max_steps == 30
+
+
+def test_eval_at_the_flight_scale_goes_slower_and_says_so(tmp_path) -> None:
+    """``--primitive-scale 0.5``: straight ahead on an 8 m free path takes twice the steps, and the
+    JSON records the scale and step limit flown."""
+    from quadnav_onboard.daemon.testing import constant_action_checkpoint
+
+    world = tmp_path / "free.yaml"
+    world.write_text("name: free\npath:\n  waypoints: [[0, 0, 2], [8, 0, 2]]\n")
+    model = tmp_path / "straight.pt"
+    constant_action_checkpoint(str(model), FORWARD)
+    steps: dict[str, float] = {}
+    for scale in ("1.0", "0.5"):
+        out = tmp_path / f"eval{scale}.json"
+        argv = ["eval", "--model", str(model), "--world", str(world), "--trials", "1", "--seed", "0"]
+        assert main([*argv, "--primitive-scale", scale, "--json", str(out), "--no-progress"]) == 0
+        data = json.loads(out.read_text())
+        assert data["primitive_scale_m"] == float(scale) and data["max_steps"] == int(120 / float(scale))
+        (row,) = data["rows"]
+        assert row["outcome"] == "goal"
+        steps[scale] = row["time_s"]  # steps x 1 s primitives
+    assert 1.8 * steps["1.0"] <= steps["0.5"] <= 2.2 * steps["1.0"]

@@ -9,6 +9,7 @@ collision-free flights and success among the collision-free ones.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -24,6 +25,7 @@ from sim_harness.world import World
 __all__ = [
     "EvalRow",
     "GreedyFn",
+    "at_primitive_scale",
     "env_config_for_policy",
     "evaluate",
     "format_table",
@@ -78,6 +80,26 @@ def env_config_for_policy(
         primitives=prims,
         preprocess=policy.preprocess_config(),
     )
+
+
+def at_primitive_scale(
+    env_config: EnvConfig, worlds: Sequence[World], scale_m: float, max_steps: int | None = None
+) -> tuple[EnvConfig, list[World]]:
+    """The env and worlds flown with primitives of ``scale_m`` metres per axis, as a real flight
+    flies a model trained at another scale (the paper: 0.5 m): each world's moving setpoint slows
+    in proportion, so it still advances one primitive per step, and the step limit grows in
+    proportion unless ``max_steps`` is given."""
+    ratio = scale_m / env_config.primitives.scale_m
+    cfg = dataclasses.replace(
+        env_config,
+        primitives=dataclasses.replace(env_config.primitives, scale_m=scale_m),
+        max_steps=max_steps if max_steps is not None else math.ceil(env_config.max_steps / ratio),
+    )
+    slowed = [
+        dataclasses.replace(w, path=dataclasses.replace(w.path, speed_m_s=w.path.speed_m_s * ratio))
+        for w in worlds
+    ]
+    return cfg, slowed
 
 
 def policy_greedy_fn(policy: Policy) -> GreedyFn:
