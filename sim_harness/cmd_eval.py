@@ -7,7 +7,6 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 __all__ = ["add_parser", "run"]
 
@@ -89,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         env_config_for_policy,
         evaluate,
         format_table,
+        override_shield,
         policy_greedy_fn,
         summarize,
     )
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
             shield = shield_config_from_meta(policy.checkpoint.meta)
             if args.shield != "model":
                 shield = dataclasses.replace(shield, enabled=args.shield == "on")
-            shield = _override(shield, args.shield_set)
+            shield = override_shield(shield, args.shield_set)
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps or 120, shield=shield)
         if args.primitive_scale is not None:
             env_cfg, worlds = at_primitive_scale(env_cfg, worlds, args.primitive_scale, args.max_steps)
@@ -161,18 +161,3 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(out, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")
     return 0
-
-
-def _override(shield: Any, pairs: list[str]) -> Any:
-    """``shield`` with ``KEY=VALUE`` overrides, validated like a config file (errors name the key)."""
-    import yaml
-
-    from quadnav_onboard.config import parse_config
-
-    data = dataclasses.asdict(shield)
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep:
-            raise ValueError(f"--shield-set {pair!r}: expected KEY=VALUE")
-        data[key.strip()] = yaml.safe_load(value)
-    return parse_config(type(shield), data, source="--shield-set")

@@ -39,6 +39,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default="on",
         help="depth safety filter: on (default settings; default), off, or as each checkpoint says",
     )
+    p.add_argument(
+        "--shield-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one ShieldConfig field of the filter flown (repeatable)",
+    )
+    p.add_argument(
+        "--primitive-scale",
+        type=float,
+        default=None,
+        metavar="M",
+        help="fly primitives of M metres per axis (as `eval --primitive-scale`); default: the checkpoint's",
+    )
     p.add_argument("--trials", type=int, default=10, help="trials per world and seed (default 10)")
     p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the scores as JSON")
@@ -50,18 +64,30 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from quadnav_onboard.checkpoint import CheckpointError
+    from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import Policy
     from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
     from sim_harness.procgen import procedural_worlds
-    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.rl.evaluate import (
+        at_primitive_scale,
+        env_config_for_policy,
+        evaluate,
+        override_shield,
+        policy_greedy_fn,
+    )
     from sim_harness.world import load_world, paper_world_path
 
     if args.trials < 1 or args.max_steps < 1:
         print("quadnav-sim select: --trials and --max-steps must be >= 1", file=sys.stderr)
         return 2
+    if args.primitive_scale is not None and not args.primitive_scale > 0:
+        print("quadnav-sim select: --primitive-scale must be > 0", file=sys.stderr)
+        return 2
     try:
         policies = [Policy.from_path(m) for m in args.models]
-    except CheckpointError as exc:
+        for policy in policies:  # a bad --shield-set fails before any flight
+            override_shield(shield_config_from_meta(policy.checkpoint.meta), args.shield_set)
+    except (CheckpointError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim select: {exc}", file=sys.stderr)
         return 2
     sets = [
@@ -74,11 +100,17 @@ def run(args: argparse.Namespace) -> int:
         shield = shield_config_from_meta(policy.checkpoint.meta)
         if args.shield != "model":
             shield = dataclasses.replace(ShieldConfig(), enabled=args.shield == "on")
-        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
+        env_cfg = env_config_for_policy(
+            policy, max_steps=args.max_steps, shield=override_shield(shield, args.shield_set)
+        )
         parts = {}
         for name, worlds, seeds in sets:
+            if args.primitive_scale is not None:
+                env_cfg_s, worlds = at_primitive_scale(env_cfg, worlds, args.primitive_scale)
+            else:
+                env_cfg_s = env_cfg
             for seed in seeds:
-                rows = evaluate(policy_greedy_fn(policy), worlds, args.trials, seed, env_cfg)
+                rows = evaluate(policy_greedy_fn(policy), worlds, args.trials, seed, env_cfg_s)
                 parts[f"{name}_seed{seed}"] = {
                     "flights": len(rows),
                     "goals": sum(r.outcome == "goal" for r in rows),
@@ -99,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
         out = {
             "rule": "goals - crashes; train Env 1-7 seeds 0/1000 + dev procgen 777 seeds 0/1",
             "shield": args.shield,
+            "shield_set": args.shield_set,
+            "primitive_scale_m": args.primitive_scale,
             "trials": args.trials,
             "chosen": scores[best]["model"],
             "scores": scores,

@@ -29,6 +29,7 @@ __all__ = [
     "env_config_for_policy",
     "evaluate",
     "format_table",
+    "override_shield",
     "policy_greedy_fn",
     "summarize",
 ]
@@ -100,6 +101,20 @@ def at_primitive_scale(
         for w in worlds
     ]
     return cfg, slowed
+
+
+def override_shield(shield: ShieldConfig, pairs: Sequence[str]) -> ShieldConfig:
+    """``shield`` with ``KEY=VALUE`` overrides (values in YAML), validated like a config file:
+    errors name the key (``--shield-set`` of eval and select)."""
+    import yaml
+
+    data = dataclasses.asdict(shield)
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep:
+            raise ValueError(f"--shield-set {pair!r}: expected KEY=VALUE")
+        data[key.strip()] = yaml.safe_load(value)
+    return parse_config(ShieldConfig, data, source="--shield-set")
 
 
 def policy_greedy_fn(policy: Policy) -> GreedyFn:
