@@ -7,8 +7,47 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_flight_flags", "add_parser", "run", "shield_from_flags"]
+
+
+def shield_from_flags(policy: Any, args: argparse.Namespace) -> Any:
+    """The filter to fly ``policy`` with, by ``--shield`` and ``--shield-set`` (see
+    :func:`add_flight_flags`); raises ConfigError/ValueError on a bad override."""
+    from quadnav_onboard.shield import shield_config_from_meta
+    from sim_harness.rl.evaluate import override_shield
+
+    shield = shield_config_from_meta(policy.checkpoint.meta)
+    if args.shield != "model":
+        shield = dataclasses.replace(shield, enabled=args.shield == "on")
+    return override_shield(shield, args.shield_set)
+
+
+def add_flight_flags(p: argparse.ArgumentParser, shield_default: str) -> None:
+    """How the flights are flown, shared by ``eval`` and ``select``: the filter and the scale."""
+    p.add_argument(
+        "--primitive-scale",
+        type=float,
+        default=None,
+        metavar="M",
+        help="fly primitives of M metres per axis, the moving setpoint slowed to match (real flights: "
+        "0.5, as in the paper); default: the checkpoint's",
+    )
+    p.add_argument(
+        "--shield",
+        choices=("model", "on", "off"),
+        default=shield_default,
+        help="depth safety filter: as the checkpoint says (model), forced on with the checkpoint's "
+        f"settings (the defaults if it has none) or off; default: {shield_default}",
+    )
+    p.add_argument(
+        "--shield-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one ShieldConfig field of the filter flown (repeatable; e.g. clearance_m=0.55)",
+    )
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -50,27 +89,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="step limit per flight (default 120, scaled with --primitive-scale)",
     )
-    p.add_argument(
-        "--primitive-scale",
-        type=float,
-        default=None,
-        metavar="M",
-        help="fly primitives of M metres per axis, the moving setpoint slowed to match (real flights: "
-        "0.5, as in the paper); default: the checkpoint's",
-    )
-    p.add_argument(
-        "--shield",
-        choices=("model", "on", "off"),
-        default="model",
-        help="depth safety filter: as the checkpoint says (default), forced on (its settings) or off",
-    )
-    p.add_argument(
-        "--shield-set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override one ShieldConfig field of the filter flown (repeatable; e.g. clearance_m=0.55)",
-    )
+    add_flight_flags(p, shield_default="model")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -82,13 +101,11 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from quadnav_onboard.shield import shield_config_from_meta
     from sim_harness.rl.evaluate import (
         at_primitive_scale,
         env_config_for_policy,
         evaluate,
         format_table,
-        override_shield,
         policy_greedy_fn,
         summarize,
     )
@@ -114,12 +131,7 @@ def run(args: argparse.Namespace) -> int:
 
             worlds = procedural_worlds(args.procedural, args.procedural_seed)
             paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
-        shield = None
-        if args.shield != "model" or args.shield_set:
-            shield = shield_config_from_meta(policy.checkpoint.meta)
-            if args.shield != "model":
-                shield = dataclasses.replace(shield, enabled=args.shield == "on")
-            shield = override_shield(shield, args.shield_set)
+        shield = shield_from_flags(policy, args)
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps or 120, shield=shield)
         if args.primitive_scale is not None:
             env_cfg, worlds = at_primitive_scale(env_cfg, worlds, args.primitive_scale, args.max_steps)

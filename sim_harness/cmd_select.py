@@ -6,7 +6,8 @@ The rule (the one ``docs/results.md`` uses to pick the shipped seed): score = go
 - a development set of 8 generated worlds (procedural seed 777), 10 trials each, seeds 0 and 1
   (160 flights),
 
-flown greedily with the depth safety filter (``--shield on``, its default settings, as shipped).
+flown greedily with the depth safety filter (``--shield on``: the checkpoint's settings, the
+defaults for a checkpoint trained without it, which is how the shipped model flies).
 Ties go to the checkpoint listed first. The held-out Env 8–10 and the test worlds (procedural seed
 4242) are never flown here.
 """
@@ -14,7 +15,6 @@ Ties go to the checkpoint listed first. The held-out Env 8–10 and the test wor
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -26,6 +26,8 @@ DEV_PROCEDURAL_SEED = 777
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    from sim_harness.cmd_eval import add_flight_flags
+
     p = subparsers.add_parser(
         "select",
         help="score checkpoints on the training and development worlds (never the held-out ones)",
@@ -33,26 +35,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("models", nargs="+", metavar="CKPT", help="checkpoints to score")
-    p.add_argument(
-        "--shield",
-        choices=("on", "off", "model"),
-        default="on",
-        help="depth safety filter: on (default settings; default), off, or as each checkpoint says",
-    )
-    p.add_argument(
-        "--shield-set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override one ShieldConfig field of the filter flown (repeatable)",
-    )
-    p.add_argument(
-        "--primitive-scale",
-        type=float,
-        default=None,
-        metavar="M",
-        help="fly primitives of M metres per axis (as `eval --primitive-scale`); default: the checkpoint's",
-    )
+    add_flight_flags(p, shield_default="on")
     p.add_argument("--trials", type=int, default=10, help="trials per world and seed (default 10)")
     p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the scores as JSON")
@@ -66,15 +49,9 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import Policy
-    from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
+    from sim_harness.cmd_eval import shield_from_flags
     from sim_harness.procgen import procedural_worlds
-    from sim_harness.rl.evaluate import (
-        at_primitive_scale,
-        env_config_for_policy,
-        evaluate,
-        override_shield,
-        policy_greedy_fn,
-    )
+    from sim_harness.rl.evaluate import at_primitive_scale, env_config_for_policy, evaluate, policy_greedy_fn
     from sim_harness.world import load_world, paper_world_path
 
     if args.trials < 1 or args.max_steps < 1:
@@ -85,8 +62,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         policies = [Policy.from_path(m) for m in args.models]
-        for policy in policies:  # a bad --shield-set fails before any flight
-            override_shield(shield_config_from_meta(policy.checkpoint.meta), args.shield_set)
+        shields = [shield_from_flags(policy, args) for policy in policies]  # bad flags: before any flight
     except (CheckpointError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim select: {exc}", file=sys.stderr)
         return 2
@@ -96,13 +72,8 @@ def run(args: argparse.Namespace) -> int:
     ]
     scores = []
     bar = tqdm(total=len(policies) * 4, desc="select", unit="set", disable=args.no_progress, file=sys.stderr)
-    for model, policy in zip(args.models, policies, strict=True):
-        shield = shield_config_from_meta(policy.checkpoint.meta)
-        if args.shield != "model":
-            shield = dataclasses.replace(ShieldConfig(), enabled=args.shield == "on")
-        env_cfg = env_config_for_policy(
-            policy, max_steps=args.max_steps, shield=override_shield(shield, args.shield_set)
-        )
+    for model, policy, shield in zip(args.models, policies, shields, strict=True):
+        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
         parts = {}
         for name, worlds, seeds in sets:
             if args.primitive_scale is not None:
