@@ -102,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
     from sim_harness.rl.evaluate import (
+        REFERENCE_SCALE_M,
         at_primitive_scale,
         env_config_for_policy,
         evaluate,
@@ -133,8 +134,9 @@ def run(args: argparse.Namespace) -> int:
             paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
         shield = shield_from_flags(policy, args)
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps or 120, shield=shield)
-        if args.primitive_scale is not None:
-            env_cfg, worlds = at_primitive_scale(env_cfg, worlds, args.primitive_scale, args.max_steps)
+        scale = args.primitive_scale if args.primitive_scale is not None else env_cfg.primitives.scale_m
+        if scale != REFERENCE_SCALE_M:  # also a model trained at another scale, by default
+            env_cfg, worlds = at_primitive_scale(env_cfg, worlds, scale, args.max_steps)
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2

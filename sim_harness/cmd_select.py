@@ -51,7 +51,13 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.policy import Policy
     from sim_harness.cmd_eval import shield_from_flags
     from sim_harness.procgen import procedural_worlds
-    from sim_harness.rl.evaluate import at_primitive_scale, env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.rl.evaluate import (
+        REFERENCE_SCALE_M,
+        at_primitive_scale,
+        env_config_for_policy,
+        evaluate,
+        policy_greedy_fn,
+    )
     from sim_harness.world import load_world, paper_world_path
 
     if args.trials < 1 or args.max_steps < 1:
@@ -76,10 +82,10 @@ def run(args: argparse.Namespace) -> int:
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
         parts = {}
         for name, worlds, seeds in sets:
-            if args.primitive_scale is not None:
-                env_cfg_s, worlds = at_primitive_scale(env_cfg, worlds, args.primitive_scale)
-            else:
-                env_cfg_s = env_cfg
+            scale = args.primitive_scale if args.primitive_scale is not None else env_cfg.primitives.scale_m
+            env_cfg_s = env_cfg
+            if scale != REFERENCE_SCALE_M:
+                env_cfg_s, worlds = at_primitive_scale(env_cfg, worlds, scale)
             for seed in seeds:
                 rows = evaluate(policy_greedy_fn(policy), worlds, args.trials, seed, env_cfg_s)
                 parts[f"{name}_seed{seed}"] = {

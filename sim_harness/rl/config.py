@@ -57,6 +57,10 @@ class TrainConfig:
     """Environments stepped together (vectorised numpy)."""
     max_steps: Annotated[int, pydantic.Field(ge=1)] = 120
     """Step limit per training episode."""
+    primitive_scale_m: Annotated[float, pydantic.Field(gt=0)] = 1.0
+    """Size (m per axis) of the primitives trained with (beyond the paper's sim, which trains at
+    1 m and flies at 0.5 m). The moving setpoint slows and ``max_steps`` (written for 1 m) grows in
+    proportion; the checkpoint records the scale, and eval flies it at that scale by default."""
     start_jitter_m: Annotated[float, pydantic.Field(ge=0)] = 0.5
     """Half-width (m) of the random start offset per axis."""
     random_start_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0

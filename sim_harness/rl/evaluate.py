@@ -23,6 +23,7 @@ from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.world import World
 
 __all__ = [
+    "REFERENCE_SCALE_M",
     "EvalRow",
     "GreedyFn",
     "at_primitive_scale",
@@ -83,14 +84,19 @@ def env_config_for_policy(
     )
 
 
+REFERENCE_SCALE_M = 1.0
+"""Primitive scale (m) that world files' path speeds and the 120-step limit are written for."""
+
+
 def at_primitive_scale(
     env_config: EnvConfig, worlds: Sequence[World], scale_m: float, max_steps: int | None = None
 ) -> tuple[EnvConfig, list[World]]:
-    """The env and worlds flown with primitives of ``scale_m`` metres per axis, as a real flight
-    flies a model trained at another scale (the paper: 0.5 m): each world's moving setpoint slows
-    in proportion, so it still advances one primitive per step, and the step limit grows in
-    proportion unless ``max_steps`` is given."""
-    ratio = scale_m / env_config.primitives.scale_m
+    """The env and worlds flown with primitives of ``scale_m`` metres per axis (a real flight: 0.5 m,
+    as in the paper). Worlds and ``env_config.max_steps`` are taken as written for
+    :data:`REFERENCE_SCALE_M`: each world's moving setpoint slows in proportion, so it still
+    advances one primitive per step, and the step limit grows in proportion unless ``max_steps``
+    is given."""
+    ratio = scale_m / REFERENCE_SCALE_M
     cfg = dataclasses.replace(
         env_config,
         primitives=dataclasses.replace(env_config.primitives, scale_m=scale_m),

@@ -30,6 +30,7 @@ from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
+from sim_harness.rl.evaluate import REFERENCE_SCALE_M, at_primitive_scale
 from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
 from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
 from sim_harness.rl.schedules import LinearSchedule
@@ -153,6 +154,8 @@ def train(
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
     worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
     worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed)
+    if cfg.primitive_scale_m != REFERENCE_SCALE_M:
+        env_cfg, worlds = at_primitive_scale(env_cfg, worlds, cfg.primitive_scale_m)
     init = _init_checkpoint(cfg) if resume is None else None  # fails before a run directory exists
     if resume is None:
         run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
