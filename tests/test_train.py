@@ -173,3 +173,18 @@ def test_optional_fields_have_flags_of_their_type() -> None:
     args = build_parser().parse_args(["train", "--lr-end", "0.00003", "--episodes", "10"])
     assert config_from_args(args).lr_end == pytest.approx(3e-5)
     assert config_from_args(build_parser().parse_args(["train"])).lr_end is None
+
+
+def test_training_at_half_scale_records_it_and_eval_flies_it_there(tmp_path) -> None:
+    """primitive_scale_m=0.5: the checkpoint holds 0.5 m primitives and the 240-step env; eval flies
+    it at 0.5 m with the setpoint slowed to match, without being told."""
+    from sim_harness.cli import main
+
+    result = train(_tiny(tmp_path, episodes=4, primitive_scale_m=0.5), progress=False)
+    ckpt = load_checkpoint(result.model_path)
+    assert ckpt.primitives["scale_m"] == 0.5 and ckpt.meta["env"]["max_steps"] == 24  # 12 written for 1 m
+    out = tmp_path / "eval.json"
+    argv = ["eval", "--model", str(result.model_path), "--world", "env01", "--trials", "1"]
+    assert main([*argv, "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert data["primitive_scale_m"] == 0.5 and data["max_steps"] == 240
