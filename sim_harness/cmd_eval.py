@@ -101,9 +101,8 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from sim_harness.env import REFERENCE_SCALE_M, at_primitive_scale
     from sim_harness.rl.evaluate import (
-        REFERENCE_SCALE_M,
-        at_primitive_scale,
         env_config_for_policy,
         evaluate,
         format_table,

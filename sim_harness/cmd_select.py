@@ -50,10 +50,9 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import Policy
     from sim_harness.cmd_eval import shield_from_flags
+    from sim_harness.env import REFERENCE_SCALE_M, at_primitive_scale
     from sim_harness.procgen import procedural_worlds
     from sim_harness.rl.evaluate import (
-        REFERENCE_SCALE_M,
-        at_primitive_scale,
         env_config_for_policy,
         evaluate,
         policy_greedy_fn,

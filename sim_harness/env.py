@@ -17,6 +17,8 @@ training and evaluation use; :class:`QuadNavEnv` is the single-env Gymnasium vie
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Annotated, Any
@@ -37,7 +39,7 @@ from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_network_inputs
 from sim_harness.world import World
 
-__all__ = ["OUTCOMES", "EnvConfig", "QuadNavEnv", "VecQuadNavEnv"]
+__all__ = ["OUTCOMES", "REFERENCE_SCALE_M", "EnvConfig", "QuadNavEnv", "VecQuadNavEnv", "at_primitive_scale"]
 
 OUTCOMES = ("goal", "crash", "deviation", "timeout")
 """Why an episode ends; ``None`` while it runs."""
@@ -372,3 +374,28 @@ class QuadNavEnv(gym.Env):
             "world_index": int(info["world_index"][0]),
         }
         return self._obs(), float(rew[0]), bool(term[0]), bool(trunc[0]), out
+
+
+REFERENCE_SCALE_M = 1.0
+"""Primitive scale (m) that world files' path speeds and the 120-step limit are written for."""
+
+
+def at_primitive_scale(
+    env_config: EnvConfig, worlds: Sequence[World], scale_m: float, max_steps: int | None = None
+) -> tuple[EnvConfig, list[World]]:
+    """The env and worlds flown with primitives of ``scale_m`` metres per axis (a real flight: 0.5 m,
+    as in the paper). Worlds and ``env_config.max_steps`` are taken as written for
+    :data:`REFERENCE_SCALE_M`: each world's moving setpoint slows in proportion, so it still
+    advances one primitive per step, and the step limit grows in proportion unless ``max_steps``
+    is given."""
+    ratio = scale_m / REFERENCE_SCALE_M
+    cfg = dataclasses.replace(
+        env_config,
+        primitives=dataclasses.replace(env_config.primitives, scale_m=scale_m),
+        max_steps=max_steps if max_steps is not None else math.ceil(env_config.max_steps / ratio),
+    )
+    slowed = [
+        dataclasses.replace(w, path=dataclasses.replace(w.path, speed_m_s=w.path.speed_m_s * ratio))
+        for w in worlds
+    ]
+    return cfg, slowed

@@ -109,7 +109,7 @@ def test_eval_command_reports_a_missing_model(tmp_path, capsys) -> None:
 def test_at_primitive_scale_slows_the_setpoint_and_lengthens_the_step_limit() -> None:
     """Half-size primitives: the moving setpoint still advances one primitive per step (speed
     halved) and the step limit doubles unless given; obstacles and waypoints are untouched."""
-    from sim_harness.rl.evaluate import at_primitive_scale
+    from sim_harness.env import at_primitive_scale
 
     w = _world("w", [{"type": "box", "center": [6, 0, 2], "size": [1, 1, 1]}])
     cfg, (slow,) = at_primitive_scale(EnvConfig(max_steps=120), [w], 0.5)

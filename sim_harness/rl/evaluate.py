@@ -9,7 +9,6 @@ collision-free flights and success among the collision-free ones.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -23,10 +22,8 @@ from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.world import World
 
 __all__ = [
-    "REFERENCE_SCALE_M",
     "EvalRow",
     "GreedyFn",
-    "at_primitive_scale",
     "env_config_for_policy",
     "evaluate",
     "format_table",
@@ -82,31 +79,6 @@ def env_config_for_policy(
         primitives=prims,
         preprocess=policy.preprocess_config(),
     )
-
-
-REFERENCE_SCALE_M = 1.0
-"""Primitive scale (m) that world files' path speeds and the 120-step limit are written for."""
-
-
-def at_primitive_scale(
-    env_config: EnvConfig, worlds: Sequence[World], scale_m: float, max_steps: int | None = None
-) -> tuple[EnvConfig, list[World]]:
-    """The env and worlds flown with primitives of ``scale_m`` metres per axis (a real flight: 0.5 m,
-    as in the paper). Worlds and ``env_config.max_steps`` are taken as written for
-    :data:`REFERENCE_SCALE_M`: each world's moving setpoint slows in proportion, so it still
-    advances one primitive per step, and the step limit grows in proportion unless ``max_steps``
-    is given."""
-    ratio = scale_m / REFERENCE_SCALE_M
-    cfg = dataclasses.replace(
-        env_config,
-        primitives=dataclasses.replace(env_config.primitives, scale_m=scale_m),
-        max_steps=max_steps if max_steps is not None else math.ceil(env_config.max_steps / ratio),
-    )
-    slowed = [
-        dataclasses.replace(w, path=dataclasses.replace(w.path, speed_m_s=w.path.speed_m_s * ratio))
-        for w in worlds
-    ]
-    return cfg, slowed
 
 
 def override_shield(shield: ShieldConfig, pairs: Sequence[str]) -> ShieldConfig:

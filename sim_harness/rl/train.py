@@ -26,11 +26,10 @@ from quadnav_onboard.checkpoint import Checkpoint, load_checkpoint, save_checkpo
 from quadnav_onboard.config import ConfigError
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.shield import ShieldConfig
-from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.env import REFERENCE_SCALE_M, EnvConfig, VecQuadNavEnv, at_primitive_scale
 from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
-from sim_harness.rl.evaluate import REFERENCE_SCALE_M, at_primitive_scale
 from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
 from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
 from sim_harness.rl.schedules import LinearSchedule
@@ -118,7 +117,6 @@ def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:
     return {k: v.bit_generator.state for k, v in rngs.items()}
 
 
-
 def learning_rate_at(episode: int, cfg: TrainConfig) -> float:
     """The step size at ``episode``: ``learning_rate`` through the ε/γ ramp, then linear to
     ``lr_end`` at the last episode (constant when ``lr_end`` is None)."""
@@ -128,6 +126,7 @@ def learning_rate_at(episode: int, cfg: TrainConfig) -> float:
     tail = max(cfg.episodes - ramp, 1.0)
     p = min(max((episode - ramp) / tail, 0.0), 1.0)
     return cfg.learning_rate + (cfg.lr_end - cfg.learning_rate) * p
+
 
 def train(
     config: TrainConfig | None = None,
