@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["LinearSchedule", "linear_schedule"]
+__all__ = ["LinearSchedule", "linear_schedule", "linear_tail"]
 
 
 def linear_schedule(start: float, end: float, episode: float, total_episodes: int, fraction: float) -> float:
@@ -19,6 +19,16 @@ def linear_schedule(start: float, end: float, episode: float, total_episodes: in
         raise ValueError(f"fraction must be in (0, 1], got {fraction}")
     ramp = fraction * total_episodes
     p = min(max(float(episode) / ramp, 0.0), 1.0)
+    return float(start + (end - start) * p)
+
+
+def linear_tail(start: float, end: float, episode: float, total_episodes: int, fraction: float) -> float:
+    """The other half of :func:`linear_schedule`: ``start`` through the first ``fraction`` of the
+    episodes, then linear to ``end`` at the last one (a step size that decays once ε and γ are
+    flat)."""
+    linear_schedule(start, end, 0, total_episodes, fraction)  # the same argument checks
+    ramp = fraction * total_episodes
+    p = min(max((float(episode) - ramp) / max(total_episodes - ramp, 1.0), 0.0), 1.0)
     return float(start + (end - start) * p)
 
 

@@ -32,7 +32,7 @@ from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
 from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
 from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
-from sim_harness.rl.schedules import LinearSchedule
+from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.world import load_world, paper_world_path
 
 __all__ = ["TrainResult", "env_config_for", "learning_rate_at", "network_config_for", "train"]
@@ -122,10 +122,7 @@ def learning_rate_at(episode: int, cfg: TrainConfig) -> float:
     ``lr_end`` at the last episode (constant when ``lr_end`` is None)."""
     if cfg.lr_end is None:
         return cfg.learning_rate
-    ramp = cfg.schedule_fraction * cfg.episodes
-    tail = max(cfg.episodes - ramp, 1.0)
-    p = min(max((episode - ramp) / tail, 0.0), 1.0)
-    return cfg.learning_rate + (cfg.lr_end - cfg.learning_rate) * p
+    return linear_tail(cfg.learning_rate, cfg.lr_end, episode, cfg.episodes, cfg.schedule_fraction)
 
 
 def train(
