@@ -121,7 +121,9 @@ async def fly(
     cut: str | None,
     record: Path | None = None,
     writer: str | None = None,
-) -> tuple[Any, float]:
+) -> tuple[Any, float, float | None]:
+    """Fly one benchmark flight; returns its summary, the daemon's CPU and the record writer
+    process's CPU (fractions of one core; the latter None without a writer process)."""
     vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=15.0)
     depth, mocap = CameraFeed(), MocapFeed(vehicle)
     path = RoughPath(np.array([[0.0, 0.0, 1.5], [22.0, 0.0, 1.5]]), 1.0)
@@ -166,15 +168,12 @@ async def fly(
     sampler.cancel()
     if task:
         task.cancel()
+    writer_frac = None
     if len(writer_cpu) >= 2:
         (t0, c0), (t1, c1) = writer_cpu[0], writer_cpu[-1]
-        print(f"record writer process CPU: {100 * (c1 - c0) / (t1 - t0):.1f} % of one core (sampled)")
-        WRITER_CPU.append((c1 - c0) / (t1 - t0))
-    return summary, cpu
-
-
-WRITER_CPU: list[float] = []
-"""CPU of the record's writer process per flight (fraction of one core), when it is a process."""
+        writer_frac = (c1 - c0) / (t1 - t0)
+        print(f"record writer process CPU: {100 * writer_frac:.1f} % of one core (sampled)")
+    return summary, cpu, writer_frac
 
 
 def serve(world: Path, port: int) -> subprocess.Popen[bytes]:
@@ -240,14 +239,14 @@ def main() -> None:
         record = tmp / f"flight-{i}-{name}.mcap" if args.record else None
         try:
             steps = 80 if cut is None else 30
-            summary, cpu = asyncio.run(fly(port, policy, steps, cut, record, args.record_writer))
+            summary, cpu, writer_cpu = asyncio.run(fly(port, policy, steps, cut, record, args.record_writer))
         finally:
             emu.terminate()
             emu.wait(10)
         if cut is None:
             results["main_run"] = {**summary.to_dict(), "daemon_cpu_fraction_of_one_core": round(cpu, 4)}
-            if WRITER_CPU:
-                results["main_run"]["record_writer_cpu_fraction_of_one_core"] = round(WRITER_CPU[-1], 4)
+            if writer_cpu is not None:
+                results["main_run"]["record_writer_cpu_fraction_of_one_core"] = round(writer_cpu, 4)
             if record is not None:
                 results["main_run"]["record_bytes"] = record.stat().st_size
         elif summary.hold_reaction_ms is not None:

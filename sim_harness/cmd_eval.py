@@ -7,12 +7,16 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from quadnav_onboard.policy import Policy
+    from quadnav_onboard.shield import ShieldConfig
 
 __all__ = ["add_flight_flags", "add_parser", "run", "shield_from_flags"]
 
 
-def shield_from_flags(policy: Any, args: argparse.Namespace) -> Any:
+def shield_from_flags(policy: Policy, args: argparse.Namespace) -> ShieldConfig:
     """The filter to fly ``policy`` with, by ``--shield`` and ``--shield-set`` (see
     :func:`add_flight_flags`); raises ConfigError/ValueError on a bad override."""
     from quadnav_onboard.shield import shield_config_from_meta
