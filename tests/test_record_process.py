@@ -153,3 +153,25 @@ def test_writer_process_records_big_depth_frames_intact(tmp_path):
         assert rec.dropped == 0
     got = read_record(path).depth
     assert len(got) == 3 and all(np.array_equal(g, f) for (_, g), f in zip(got, frames, strict=True))
+
+
+def test_a_garbled_first_frame_is_reported_on_the_status_line(tmp_path):
+    """The writer process answers bytes that are not a frame with one ``failed`` status line and
+    exit code 1, never a traceback (the recorder turns it into a RecorderError)."""
+    import json
+
+    fd = os.open(tmp_path / "f.mcap", os.O_WRONLY | os.O_CREAT)
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "quadnav_onboard.record.writer_process", str(fd)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            pass_fds=(fd,),
+        )
+        out, err = proc.communicate(b"\x05\x00\x00\x00garbage", timeout=30)
+    finally:
+        os.close(fd)
+    assert proc.returncode == 1 and b"Traceback" not in err
+    (line,) = out.decode().splitlines()
+    assert "UnpicklingError" in json.loads(line)["failed"]

@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"first frame must be 'open', got {kind!r}")
         file = os.fdopen(int(args[0]), "wb")
         sink = McapSink.from_options(file, opts, lambda k, e: say(invalid=k, error=e))
-    except (OSError, ValueError, EOFError, IndexError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, EOFError, IndexError, KeyError, TypeError, pickle.UnpicklingError) as exc:
         say(failed=f"{type(exc).__name__}: {exc}")
         return 1
     say(ready=True)
