@@ -21,7 +21,7 @@ see :mod:`quadnav_onboard.preprocess`), row 0 up, column 0 left.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
@@ -41,6 +41,7 @@ __all__ = [
     "primitive_clearance",
     "primitive_samples",
     "primitive_seen_free",
+    "shield_at_scale",
     "shield_config_from_meta",
     "shield_verdict",
 ]
@@ -60,7 +61,10 @@ class ShieldConfig:
     """Least allowed distance (m) from the primitive's predicted path to any remembered depth point
     (the quad's 0.3 m radius plus a margin for depth noise and what the prediction misses)."""
     memory_steps: int = 4
-    """Decisions whose depth points are remembered (the current one included)."""
+    """Decisions whose depth points are remembered (the current one included), counted at the
+    primitive scale the model was trained with. Flown with shorter primitives, the filter keeps
+    proportionally more decisions, so it remembers the same distance of travel
+    (:func:`shield_at_scale`): 4 at 1 m is 8 at 0.5 m."""
     samples: int = 8
     """Points sampled along each primitive (its start excluded)."""
     lookahead_s: float = 0.3
@@ -111,6 +115,19 @@ class ShieldConfig:
             raise ValueError("fields of view must be in (0, 180) deg")
         if len(self.camera_offset_m) != 3 or not all(math.isfinite(v) for v in self.camera_offset_m):
             raise ValueError(f"camera_offset_m must be 3 finite numbers, got {self.camera_offset_m!r}")
+
+
+def shield_at_scale(cfg: ShieldConfig, trained_scale_m: float, flown_scale_m: float) -> ShieldConfig:
+    """``cfg`` (written for primitives of ``trained_scale_m``) for primitives of ``flown_scale_m``.
+
+    An obstacle leaves the field of view after a given distance of sideways or vertical travel,
+    not after a given number of decisions: with half-length primitives the memory keeps twice the
+    decisions (rounded up). Distances, times and angles stay as they are.
+    """
+    if not (trained_scale_m > 0 and flown_scale_m > 0):
+        raise ValueError(f"primitive scales must be > 0, got {trained_scale_m} and {flown_scale_m}")
+    steps = max(1, math.ceil(cfg.memory_steps * trained_scale_m / flown_scale_m - 1e-9))
+    return cfg if steps == cfg.memory_steps else replace(cfg, memory_steps=steps)
 
 
 def shield_config_from_meta(meta: dict, source: str = "checkpoint.meta.shield") -> ShieldConfig:

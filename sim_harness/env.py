@@ -33,7 +33,7 @@ from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.primitives import bezier_position, bezier_velocity
 from quadnav_onboard.reward import RewardParams, reward
-from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_verdict
+from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_at_scale, shield_verdict
 from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_network_inputs
@@ -387,11 +387,13 @@ def at_primitive_scale(
     as in the paper). Worlds and ``env_config.max_steps`` are taken as written for
     :data:`REFERENCE_SCALE_M`: each world's moving setpoint slows in proportion, so it still
     advances one primitive per step, and the step limit grows in proportion unless ``max_steps``
-    is given."""
+    is given. The shield, written for ``env_config``'s primitives, keeps the same distance of
+    memory (:func:`quadnav_onboard.shield.shield_at_scale`)."""
     ratio = scale_m / REFERENCE_SCALE_M
     cfg = dataclasses.replace(
         env_config,
         primitives=dataclasses.replace(env_config.primitives, scale_m=scale_m),
+        shield=shield_at_scale(env_config.shield, env_config.primitives.scale_m, scale_m),
         max_steps=max_steps if max_steps is not None else math.ceil(env_config.max_steps / ratio),
     )
     slowed = [

@@ -12,7 +12,7 @@ from quadnav_onboard.network import DQN, NetworkConfig
 from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig, preprocess_depth_mm
-from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
 from quadnav_onboard.shield import ShieldConfig
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 
@@ -106,6 +106,20 @@ def test_with_the_shield_on_the_decision_keeps_out_of_a_wall_in_front(policy: Po
     unshielded = plain.decide(plain.prepare(frame, plain.snapshot()), np.zeros(3), "full")
     assert unshielded.allowed is None
     np.testing.assert_array_equal(unshielded.q, decision.q)
+
+
+def test_flown_with_shorter_primitives_the_shield_remembers_more_decisions(policy: Policy) -> None:
+    """The real-flight 0.5 m primitives on a model trained with 1 m ones: the filter's memory keeps
+    the same distance of travel (twice the decisions), whether the shield is the model's or the
+    flight config's."""
+    assert policy.primitive_config().scale_m == 1.0
+    half = PrimitiveSet(scale_m=0.5)
+    assert Decider(policy, PreprocessConfig(), half, ShieldConfig(enabled=True)).shield.memory_steps == 8
+    decider = Decider(policy, PreprocessConfig(), half, ShieldConfig(enabled=True, memory_steps=3))
+    assert decider.shield.memory_steps == 6 and decider.memory is not None
+    assert decider.memory.points.shape[1] == 6 * 1024
+    same = Decider(policy, PreprocessConfig(), PrimitiveSet(), ShieldConfig(enabled=True))
+    assert same.shield.memory_steps == 4
 
 
 def test_the_shield_needs_the_vehicles_motion(policy: Policy) -> None:

@@ -8,6 +8,7 @@ import numpy as np
 
 from quadnav_onboard.checkpoint import save_checkpoint
 from quadnav_onboard.network import DQN, NetworkConfig
+from quadnav_onboard.shield import ShieldConfig
 from sim_harness.cli import main
 from sim_harness.env import EnvConfig
 from sim_harness.rl.evaluate import EvalRow, evaluate, format_table, summarize
@@ -117,6 +118,8 @@ def test_at_primitive_scale_slows_the_setpoint_and_lengthens_the_step_limit() ->
     assert slow.path.speed_m_s == w.path.speed_m_s / 2
     assert np.array_equal(slow.path.waypoints_m, w.path.waypoints_m) and slow.obstacles == w.obstacles
     assert at_primitive_scale(EnvConfig(max_steps=120), [w], 0.5, max_steps=30)[0].max_steps == 30
+    shielded = EnvConfig(shield=ShieldConfig(enabled=True, memory_steps=4))
+    assert at_primitive_scale(shielded, [w], 0.5)[0].shield.memory_steps == 8  # the same 4 m of travel
 
 
 def test_eval_at_the_flight_scale_goes_slower_and_says_so(tmp_path) -> None:

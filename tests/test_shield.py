@@ -15,6 +15,7 @@ from quadnav_onboard.shield import (
     depth_points_heading,
     primitive_clearance,
     primitive_samples,
+    shield_at_scale,
     shield_config_from_meta,
 )
 
@@ -68,6 +69,31 @@ def test_the_wall_is_remembered_after_it_leaves_the_field_of_view():
     pts = mem.points[0][np.isfinite(mem.points[0, :, 0])]
     assert len(pts) == 1024
     np.testing.assert_allclose(pts[:, 0], 3.0, rtol=1e-6)
+
+
+def test_at_half_scale_the_memory_keeps_the_same_travel():
+    """Written for 1 m primitives, flown with 0.5 m ones: twice the decisions (rounded up), so a
+    wall passed 3 m back is still remembered after six 0.5 m steps, as after three 1 m steps."""
+    written = ShieldConfig(enabled=True, memory_steps=4)
+    assert shield_at_scale(written, 1.0, 1.0) is written
+    assert shield_at_scale(written, 1.0, 0.5).memory_steps == 8
+    assert shield_at_scale(written, 0.5, 1.0).memory_steps == 2
+    assert shield_at_scale(ShieldConfig(memory_steps=3), 1.0, 0.4).memory_steps == 8  # 7.5 -> 8
+    assert shield_at_scale(ShieldConfig(memory_steps=1), 1.0, 3.0).memory_steps == 1  # never 0
+    assert shield_at_scale(written, 1.0, 0.5).clearance_m == written.clearance_m
+
+    def remembers_the_wall(cfg: ShieldConfig, step_m: float, steps: int) -> bool:
+        mem = PointMemory(1, cfg)
+        mem.add([0], wall_input(2.0, cfg)[None], np.zeros((1, 3)), np.zeros(1))
+        for k in range(1, steps + 1):  # sidestepping left, looking at nothing
+            mem.add([0], np.ones((1, 32, 32), np.float32), np.array([[0.0, k * step_m, 0]]), np.zeros(1))
+        return bool(np.isfinite(mem.points[0, :, 0]).any())
+
+    assert remembers_the_wall(written, 1.0, 3)
+    assert not remembers_the_wall(written, 0.5, 6)  # unscaled: the same 3 m forgets it
+    assert remembers_the_wall(shield_at_scale(written, 1.0, 0.5), 0.5, 6)
+    with pytest.raises(ValueError, match="scales"):
+        shield_at_scale(written, 1.0, 0.0)
 
 
 def test_hovering_in_place_replaces_the_newest_view_instead_of_forgetting_old_ones():

@@ -275,7 +275,15 @@ class FlightDaemon(StopLadder):
                 "model", False, f"test inference gave Q-values of shape {q.shape} / non-finite"
             )
         sha = pol.checkpoint.sha256[:12]
-        return PreflightCheck("model", True, f"{pol.n_actions} actions, sha256 {sha}")
+        sh = self.decider.shield
+        shield = (
+            f"shield on (clearance {sh.clearance_m} m, memory {sh.memory_steps} decisions)"
+            if sh.enabled
+            else "shield off"
+        )
+        return PreflightCheck(
+            "model", True, f"{pol.n_actions} actions of {self.prims.scale_m} m, sha256 {sha}, {shield}"
+        )
 
     def _test_decision(self) -> np.ndarray:
         """One whole decision (preprocess, depth lane, shield, head) on a scratch decider and a

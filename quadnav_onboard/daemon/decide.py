@@ -31,7 +31,13 @@ from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.primitives import PrimitiveSet
-from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_config_from_meta, shield_verdict
+from quadnav_onboard.shield import (
+    PointMemory,
+    ShieldConfig,
+    shield_at_scale,
+    shield_config_from_meta,
+    shield_verdict,
+)
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 
 __all__ = ["Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
@@ -118,8 +124,10 @@ class Decider:
         self.history = ObservationHistory(policy.depth_history, policy.position_history)
         self.prepared: PreparedFrame | None = None
         self.prims = prims or policy.primitive_set()
-        self.shield = shield if shield is not None else shield_config_from_meta(policy.checkpoint.meta)
-        """The depth safety filter (default: the one the model was evaluated with)."""
+        shield = shield if shield is not None else shield_config_from_meta(policy.checkpoint.meta)
+        self.shield = shield_at_scale(shield, policy.primitive_config().scale_m, self.prims.scale_m)
+        """The depth safety filter (default: the one the model was evaluated with), its memory
+        counted for the primitives flown (:func:`quadnav_onboard.shield.shield_at_scale`)."""
         self.memory = PointMemory(1, self.shield) if self.shield.enabled else None
 
     def snapshot(self) -> ObservationHistory:
