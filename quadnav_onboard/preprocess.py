@@ -7,7 +7,9 @@ pixels nearer than min range read as min range. Downsampling is area averaging
 (``cv2.INTER_AREA``), applied after invalid handling so holes do not pull the average to zero.
 
 The same functions serve the simulator (batched float depth) and the vehicle (uint16 frames):
-what is trained is exactly what flies.
+what is trained is exactly what flies. :func:`nearest_depth_mm` is the depth safety filter's view
+of the same frame (:mod:`quadnav_onboard.shield`): the nearest surface in each cell instead of the
+average, after a 3x3 median so that a lone speckle is not an obstacle.
 """
 
 from __future__ import annotations
@@ -18,7 +20,14 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["DepthFrameError", "PreprocessConfig", "normalize_depth_m", "preprocess_depth_mm"]
+__all__ = [
+    "DepthFrameError",
+    "PreprocessConfig",
+    "nearest_depth_mm",
+    "normalize_depth_m",
+    "preprocess_depth_mm",
+    "preprocess_depth_pair",
+]
 
 OUT_SIZE = 32
 
@@ -61,14 +70,10 @@ def area_downsample(img: NDArray[np.float32], size: int = OUT_SIZE) -> NDArray[n
     return np.stack([cv2.resize(f, (size, size), interpolation=cv2.INTER_AREA) for f in img])
 
 
-def preprocess_depth_mm(
-    frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()
-) -> NDArray[np.float32]:
-    """Raw D435 depth (uint16 mm, shape (H, W), 0 = invalid) -> network input float32 (32, 32).
-
-    Raises :class:`DepthFrameError` for a wrong dtype or shape, or when fewer than
-    ``min_valid_fraction`` of the pixels hold a valid reading.
-    """
+def _clean_mm(frame: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.uint16]:
+    """A checked frame with the range rules applied in the integer domain: 0 and > max read as
+    max, < min as min (the same mapping as :func:`normalize_depth_m`, in a few passes: this runs on
+    every frame in flight)."""
     arr = np.asarray(frame)
     if arr.dtype != np.uint16:
         raise DepthFrameError(f"depth frame must be uint16 millimetres, got dtype {arr.dtype}")
@@ -76,8 +81,6 @@ def preprocess_depth_mm(
         raise DepthFrameError(
             f"depth frame must be 2-D and at least {OUT_SIZE}x{OUT_SIZE}, got shape {arr.shape}"
         )
-    # The same mapping as normalize_depth_m, done in the integer domain in a few passes (this runs
-    # on every decision in flight): 0 and > max read as max, < min as min, then area-average.
     max_mm = int(np.floor(cfg.max_range_m * 1000.0))
     min_mm = min(int(np.ceil(cfg.min_range_m * 1000.0)), max_mm)
     valid = (arr - np.uint16(1)) < np.uint16(max_mm)  # uint16 wrap-around: 0 -> 65535, invalid
@@ -89,6 +92,52 @@ def preprocess_depth_mm(
         )
     depth_mm = np.where(valid, arr, np.uint16(max_mm))
     np.maximum(depth_mm, np.uint16(min_mm), out=depth_mm)
+    return depth_mm
+
+
+def _area_input(depth_mm: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.float32]:
     out = area_downsample(depth_mm.astype(np.float32))
     out *= np.float32(1.0 / (cfg.max_range_m * 1000.0))
     return np.clip(out, cfg.min_range_m / cfg.max_range_m, 1.0, out=out)  # float rounding of the mean
+
+
+def _nearest_input(depth_mm: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.float32]:
+    depth_mm = cv2.medianBlur(depth_mm, 3)
+    h, w = depth_mm.shape
+    # columns first, along contiguous rows (about 10x faster than rows first)
+    cols = np.minimum.reduceat(depth_mm, (np.arange(OUT_SIZE) * w) // OUT_SIZE, axis=1)
+    cells = np.minimum.reduceat(cols, (np.arange(OUT_SIZE) * h) // OUT_SIZE, axis=0)
+    return cells.astype(np.float32) * np.float32(1.0 / (cfg.max_range_m * 1000.0))
+
+
+def preprocess_depth_mm(
+    frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()
+) -> NDArray[np.float32]:
+    """Raw D435 depth (uint16 mm, shape (H, W), 0 = invalid) -> network input float32 (32, 32).
+
+    Raises :class:`DepthFrameError` for a wrong dtype or shape, or when fewer than
+    ``min_valid_fraction`` of the pixels hold a valid reading.
+    """
+    return _area_input(_clean_mm(frame, cfg), cfg)
+
+
+def nearest_depth_mm(
+    frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()
+) -> NDArray[np.float32]:
+    """Raw D435 depth -> the nearest surface in each of the 32x32 cells, float32 in [0, 1] like the
+    network input (the depth safety filter's ``depth_pooling: min``).
+
+    The cells are bands of H/32 rows and W/32 columns (rounded down). A 3x3 median first removes
+    lone speckles: a surface must cover a few pixels to count. Raises :class:`DepthFrameError` as
+    :func:`preprocess_depth_mm` does.
+    """
+    return _nearest_input(_clean_mm(frame, cfg), cfg)
+
+
+def preprocess_depth_pair(
+    frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Both views of one frame, checked once: (:func:`preprocess_depth_mm`,
+    :func:`nearest_depth_mm`)."""
+    depth_mm = _clean_mm(frame, cfg)
+    return _area_input(depth_mm, cfg), _nearest_input(depth_mm, cfg)

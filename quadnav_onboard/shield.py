@@ -2,14 +2,17 @@
 
 The paper's agent crashes when it moves sideways or vertically into obstacles that have left the
 camera's field of view: it has no memory of what it saw. The shield gives the planner that memory
-and a veto. Each decision's 32x32 network input is back-projected into 3-D points (pixel centres
+and a veto. Each decision's 32x32 depth input is back-projected into 3-D points (pixel centres
 of the D435 pinhole model at the input's depth) and kept, in the world frame, for the last
-``memory_steps`` decisions. Before the DQN's arg-max, every primitive is sampled along its
-commanded Bézier curve (plus a short look-ahead at its end velocity, the overshoot of stopping
-after it) and its clearance is the least distance from those samples to any remembered point. A
-primitive is *allowed* when its clearance is at least ``clearance_m`` (the quad's radius plus a
-margin for tracking error). When none is allowed, the ones with the largest clearance are: the
-shield degrades to "least bad", never to "no answer".
+``memory_steps`` decisions. That input is, by default, the *nearest* surface in each cell of the
+frame (``depth_pooling``), not the network's area-averaged input, and each point has a "shadow"
+point ``shadow_m`` behind it along its ray (the unseen back of what was seen). Before the DQN's
+arg-max, every primitive is sampled along its commanded Bézier curve (plus a short look-ahead at
+its end velocity, the overshoot of stopping after it) and its clearance is the least distance
+from those samples to any remembered point. A primitive is *allowed* when its clearance is at
+least ``clearance_m`` (the quad's radius plus a margin for tracking error). When none is
+allowed, the ones with the largest clearance are: the shield degrades to "least bad", never to
+"no answer".
 
 Everything here is a pure function of its inputs (numpy, plus one numba kernel for the distance
 search), shared by the simulator (batched over N vehicles) and the flight daemon (N = 1), so what
@@ -38,12 +41,14 @@ __all__ = [
     "ShieldConfig",
     "allowed_actions",
     "depth_points_heading",
+    "points_per_view",
     "primitive_clearance",
     "primitive_samples",
     "primitive_seen_free",
     "shield_at_scale",
     "shield_config_from_meta",
     "shield_verdict",
+    "view_points_heading",
 ]
 
 INPUT_SIZE = OUT_SIZE
@@ -100,6 +105,14 @@ class ShieldConfig:
     """Depth (m) of an input value of 1.0 (the preprocessing's max range): 'nothing seen'."""
     search_radius_m: float = 1.5
     """Clearances are capped at this distance (m); points farther from every sample are ignored."""
+    depth_pooling: str = "min"
+    """How the filter's 32x32 depth comes from the camera frame: ``"min"``, the nearest surface in
+    each cell (a pole thinner than a cell, or an edge, keeps its true depth), or ``"mean"``, the
+    network's own area-averaged input (edges blend with the background behind them)."""
+    shadow_m: float = 0.3
+    """Each remembered point also stands for what lies behind it: a second point this far (m)
+    further along its ray, so the unseen back of a pipe or the far side of a trunk counts as solid
+    when the vehicle moves round or over it. 0 = the seen surfaces only."""
     camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Where the depth camera sits relative to the odometry's body origin, in the heading frame
     (m: forward, left, up). The sim's camera is at the origin; a D435 on a real airframe is
@@ -113,6 +126,10 @@ class ShieldConfig:
             raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
         if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
             raise ValueError("fields of view must be in (0, 180) deg")
+        if self.depth_pooling not in ("min", "mean"):
+            raise ValueError(f"depth_pooling must be 'min' or 'mean', got {self.depth_pooling!r}")
+        if not (0 <= self.shadow_m < self.search_radius_m):
+            raise ValueError(f"need 0 <= shadow_m < search_radius_m, got {self.shadow_m}")
         if len(self.camera_offset_m) != 3 or not all(math.isfinite(v) for v in self.camera_offset_m):
             raise ValueError(f"camera_offset_m must be 3 finite numbers, got {self.camera_offset_m!r}")
 
@@ -148,8 +165,8 @@ def _pixel_rays(cfg: ShieldConfig) -> NDArray[np.float64]:
 
 
 def depth_points_heading(depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig()) -> NDArray[np.float32]:
-    """Back-project network inputs (..., 32, 32) to heading-frame points (..., 1024, 3), metres,
-    relative to the camera; pixels that saw nothing (value >= 0.999) are NaN."""
+    """Back-project inputs (..., 32, 32) to heading-frame points (..., 1024, 3), metres, relative
+    to the camera; pixels that saw nothing (value >= 0.999) are NaN."""
     d = np.asarray(depth_input, dtype=np.float32)
     flat = d.reshape(*d.shape[:-2], INPUT_SIZE * INPUT_SIZE)
     z = (flat * np.float32(cfg.max_range_m))[..., None]
@@ -157,19 +174,36 @@ def depth_points_heading(depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfi
     return np.where((flat >= np.float32(0.999))[..., None], np.float32(np.nan), pts).astype(np.float32)
 
 
+def points_per_view(cfg: ShieldConfig) -> int:
+    """Points a view leaves in the memory: one per input pixel, two with shadows."""
+    return INPUT_SIZE * INPUT_SIZE * (2 if cfg.shadow_m > 0 else 1)
+
+
+def view_points_heading(depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig()) -> NDArray[np.float32]:
+    """What a view leaves in the memory, heading frame relative to the camera: the surface points
+    of :func:`depth_points_heading`, then (``shadow_m`` > 0) each one moved ``shadow_m`` further
+    along its ray; shape (..., points_per_view, 3)."""
+    pts = depth_points_heading(depth_input, cfg)
+    if cfg.shadow_m <= 0:
+        return pts
+    rng = np.linalg.norm(pts, axis=-1, keepdims=True)
+    return np.concatenate([pts, pts * ((rng + np.float32(cfg.shadow_m)) / rng)], axis=-2)
+
+
 class PointMemory:
     """What N vehicles saw at their last ``memory_steps`` decisions (a ring per vehicle).
 
-    ``points``: float32 (N, memory_steps * 1024, 3), world frame, m, NaN where nothing is
-    remembered (the obstacles). ``depth_m``: float32 (N, memory_steps, 32, 32) z-depth (m) of each
-    remembered view, ``pose``: (N, memory_steps, 4) camera position (world, m) and heading yaw (rad)
-    of each view, NaN for empty slots (the space seen to be free). The newest view is last.
+    ``points``: float32 (N, memory_steps * points_per_view, 3), world frame, m, NaN where nothing
+    is remembered (the obstacles, and their shadows). ``depth_m``: float32 (N, memory_steps, 32,
+    32) z-depth (m) of each remembered view, ``pose``: (N, memory_steps, 4) camera position
+    (world, m) and heading yaw (rad) of each view, NaN for empty slots (the space seen to be
+    free). The newest view is last.
     """
 
     def __init__(self, n: int, cfg: ShieldConfig = ShieldConfig()) -> None:
         self.cfg = cfg
         k = cfg.memory_steps
-        self.points = np.full((n, k * INPUT_SIZE * INPUT_SIZE, 3), np.nan, dtype=np.float32)
+        self.points = np.full((n, k * points_per_view(cfg), 3), np.nan, dtype=np.float32)
         self.depth_m = np.zeros((n, k, INPUT_SIZE, INPUT_SIZE), dtype=np.float32)
         self.pose = np.full((n, k, 4), np.nan)
 
@@ -197,9 +231,9 @@ class PointMemory:
         depth = np.asarray(depth_input, dtype=np.float32)
         offset = np.broadcast_to(np.asarray(self.cfg.camera_offset_m, dtype=np.float64), pos.shape)
         pos = pos + body_to_world(offset, yaw)  # the camera's position
-        pts_w = body_to_world(depth_points_heading(depth, self.cfg).astype(np.float64), yaw[:, None])
+        pts_w = body_to_world(view_points_heading(depth, self.cfg).astype(np.float64), yaw[:, None])
         pts_w += pos[:, None, :]
-        k = INPUT_SIZE * INPUT_SIZE
+        k = points_per_view(self.cfg)
         moved = ~(np.linalg.norm(pos - self.pose[ids, -1, :3], axis=-1) < self.cfg.min_travel_m)  # NaN: moved
         mem, dep, pose = self.points[ids], self.depth_m[ids], self.pose[ids]
         mem[moved, :-k] = mem[moved, k:]

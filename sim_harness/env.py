@@ -36,7 +36,7 @@ from quadnav_onboard.reward import RewardParams, reward
 from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_at_scale, shield_verdict
 from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
-from sim_harness.render import render_network_inputs
+from sim_harness.render import render_inputs
 from sim_harness.world import World
 
 __all__ = ["OUTCOMES", "REFERENCE_SCALE_M", "EnvConfig", "QuadNavEnv", "VecQuadNavEnv", "at_primitive_scale"]
@@ -159,13 +159,18 @@ class VecQuadNavEnv:
 
     def _observe(
         self, ids: NDArray[np.int64], world: World, yaw: NDArray, sp: NDArray
-    ) -> tuple[NDArray, NDArray]:
-        depth = render_network_inputs(world, self.pos_m[ids], yaw, self.config.preprocess)
+    ) -> tuple[NDArray, NDArray, NDArray]:
+        """Network inputs, relative setpoints and the shield's depth view (the nearest surface per
+        cell with ``depth_pooling: min``, else the network inputs themselves)."""
+        shield = self.config.shield
+        nearest = self.memory is not None and shield.depth_pooling == "min"
+        depth, near = render_inputs(world, self.pos_m[ids], yaw, self.config.preprocess, nearest=nearest)
         rel = world.path.relative_state(sp, self.pos_m[ids], yaw).astype(np.float32)
-        return depth.astype(np.float32, copy=False), rel
+        return depth, rel, depth if near is None else near
 
     def _update_shield(self, ids: NDArray[np.int64], depth: NDArray, yaw: NDArray, new: bool) -> None:
-        """Remember the new inputs of ``ids`` and re-check every primitive for the next decision."""
+        """Remember the new views of ``ids`` (the shield's depth view of :meth:`_observe`) and
+        re-check every primitive for the next decision."""
         if self.memory is None:
             return
         if new:
@@ -233,10 +238,10 @@ class VecQuadNavEnv:
         self.done[ids] = False
         for world, sel in self._groups(mask):
             t = self._path_terms(world, self.pos_m[sel], self.steps[sel])
-            depth, rel = self._observe(sel, world, t["yaw"], t["sp"])
+            depth, rel, view = self._observe(sel, world, t["yaw"], t["sp"])
             self.depth[sel] = depth[:, None]
             self.rel[sel] = rel[:, None]
-            self._update_shield(sel, depth, t["yaw"], new=True)
+            self._update_shield(sel, view, t["yaw"], new=True)
         return self.depth, self.rel
 
     def step(self, actions: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, dict[str, Any]]:
@@ -297,10 +302,10 @@ class VecQuadNavEnv:
             rew[ids] = reward(d_prev[ids], d_now, deviated, collided, cfg.reward)
             progress[ids] = t["arc"]
             deviation[ids] = t["dev"]
-            depth, rel = self._observe(ids, world, t["yaw"], t["sp"])
+            depth, rel, view = self._observe(ids, world, t["yaw"], t["sp"])
             self.depth[ids] = np.concatenate([self.depth[ids, 1:], depth[:, None]], axis=1)
             self.rel[ids] = np.concatenate([self.rel[ids, 1:], rel[:, None]], axis=1)
-            self._update_shield(ids, depth, t["yaw"], new=False)
+            self._update_shield(ids, view, t["yaw"], new=False)
         self.episode_return[run] += rew[run]
         terminated = run & (code >= 1) & (code <= 3)
         truncated = run & (code == 4)

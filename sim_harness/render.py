@@ -38,6 +38,7 @@ __all__ = [
     "cast_depth_m",
     "render_depth_m",
     "render_frame_mm",
+    "render_inputs",
     "render_network_inputs",
 ]
 
@@ -331,6 +332,25 @@ def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: n
                 out[n, i, j] = acc * inv
 
 
+@numba.njit(**_JIT)
+def _pool_nearest(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: no cover - compiled
+    """As :func:`_pool_normalized`, but the ss x ss block's least value (the nearest surface)."""
+    inv = 1.0 / norm_max
+    for n in range(out.shape[0]):
+        for i in range(out.shape[1]):
+            for j in range(out.shape[2]):
+                best = norm_max
+                for a in range(ss):
+                    for b in range(ss):
+                        v = t[n, i * ss + a, j * ss + b]
+                        if not (min_r <= v <= max_r) or v > norm_max:
+                            v = norm_max
+                        elif v < norm_min:
+                            v = norm_min
+                        best = min(best, v)
+                out[n, i, j] = best * inv
+
+
 def _poses(pos_world_m: ArrayLike,
            rot: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     pos = np.ascontiguousarray(np.atleast_2d(np.asarray(pos_world_m, dtype=np.float64)))
@@ -393,16 +413,32 @@ def render_network_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLi
     :func:`quadnav_onboard.preprocess.preprocess_depth_mm`, so it matches
     ``preprocess_depth_mm(render_frame_mm(...))`` closely (see tests/test_render_paths.py).
     """
+    return render_inputs(world, pos_world_m, yaw_rad, preprocess, camera=camera, supersample=supersample)[0]
+
+
+def render_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
+                  preprocess: PreprocessConfig = PreprocessConfig(), *, camera: CameraModel = D435_424x240,
+                  supersample: int = 2, nearest: bool = False
+                  ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+    """Network inputs (as :func:`render_network_inputs`) and, with ``nearest``, from the same rays
+    the depth safety filter's view: the nearest surface among each pixel's rays (the sim's
+    :func:`quadnav_onboard.preprocess.nearest_depth_mm`; a real frame has ~100 pixels per cell,
+    so it is, if anything, the more cautious of the two)."""
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
     cam32 = CameraModel(OUT_SIZE, OUT_SIZE, camera.hfov_deg, camera.vfov_deg, camera.min_range_m,
                         camera.max_range_m)
     pos, rot = _yaw_rot(pos_world_m, yaw_rad)
     t = cast_depth_m(world.geometry, pos, rot, cam32, supersample)
+    args = (supersample, camera.min_range_m, camera.max_range_m,
+            preprocess.min_range_m, preprocess.max_range_m)
     out = np.empty((pos.shape[0], OUT_SIZE, OUT_SIZE), dtype=np.float32)
-    _pool_normalized(t, supersample, camera.min_range_m, camera.max_range_m, preprocess.min_range_m,
-                     preprocess.max_range_m, out)
-    return out
+    _pool_normalized(t, *args, out)
+    if not nearest:
+        return out, None
+    near = np.empty_like(out)
+    _pool_nearest(t, *args, near)
+    return out, near
 
 
 def render_frame_mm(world: World, pos_world_m: ArrayLike, quat_world_body: ArrayLike,

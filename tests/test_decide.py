@@ -13,7 +13,7 @@ from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
-from quadnav_onboard.shield import ShieldConfig
+from quadnav_onboard.shield import ShieldConfig, points_per_view
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 
 
@@ -117,9 +117,31 @@ def test_flown_with_shorter_primitives_the_shield_remembers_more_decisions(polic
     assert Decider(policy, PreprocessConfig(), half, ShieldConfig(enabled=True)).shield.memory_steps == 8
     decider = Decider(policy, PreprocessConfig(), half, ShieldConfig(enabled=True, memory_steps=3))
     assert decider.shield.memory_steps == 6 and decider.memory is not None
-    assert decider.memory.points.shape[1] == 6 * 1024
+    assert decider.memory.points.shape[1] == 6 * points_per_view(decider.shield)
     same = Decider(policy, PreprocessConfig(), PrimitiveSet(), ShieldConfig(enabled=True))
     assert same.shield.memory_steps == 4
+
+
+def test_the_shield_sees_a_thin_pole_that_the_network_input_blurs(policy: Policy) -> None:
+    """A pole 3 pixels wide, 1.0 m ahead, against a far wall: area-averaged, its cell reads ~3.4 m,
+    so the network's input hides it; the shield's nearest-surface view keeps 1.0 m and vetoes
+    flying straight at it ("mean" pooling, on the same frame, does not)."""
+    mm = np.full((240, 424), 6000, dtype=np.uint16)
+    mm[:, 211:214] = 1000
+    frame = DepthFrame(mm, 0.0, 0)
+    fwd = DEFAULT_DIRECTIONS.index((1, 0, 0))
+    verdicts = {}
+    for pooling in ("min", "mean"):
+        d = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True, depth_pooling=pooling))
+        prepared = d.prepare(frame, d.snapshot())
+        assert (prepared.shield_view is None) == (pooling == "mean")
+        verdicts[pooling] = d.decide(prepared, np.zeros(3), "full", _still())
+    decider = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True))
+    near = decider.prepare(frame, decider.snapshot())
+    assert near.shield_view is not None and near.shield_view.min() == pytest.approx(0.1, abs=1e-6)
+    assert near.depth_input.min() > 0.25  # blurred into the background
+    assert not verdicts["min"].allowed[fwd] and verdicts["mean"].allowed[fwd]
+    assert verdicts["min"].clearance_m[fwd] < 0.5 < verdicts["mean"].clearance_m[fwd]
 
 
 def test_the_shield_needs_the_vehicles_motion(policy: Policy) -> None:

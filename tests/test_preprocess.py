@@ -10,8 +10,10 @@ from quadnav_onboard.preprocess import (
     DepthFrameError,
     PreprocessConfig,
     area_downsample,
+    nearest_depth_mm,
     normalize_depth_m,
     preprocess_depth_mm,
+    preprocess_depth_pair,
 )
 
 CFG = PreprocessConfig()
@@ -88,3 +90,33 @@ def test_unusable_frames_are_rejected(frame, match):
     """Wrong dtype, wrong shape, too small or all invalid: a clear DepthFrameError."""
     with pytest.raises(DepthFrameError, match=match):
         preprocess_depth_mm(frame)
+
+
+def test_nearest_view_keeps_a_thin_pole_and_ignores_a_lone_speckle():
+    """The shield's view: a pole 3 px wide at 1.5 m keeps its depth in its cells (the area average
+    blends it); one speckle pixel at 0.3 m is not an obstacle; holes read as far."""
+    frame = np.full((240, 424), 6000, np.uint16)
+    frame[:, 200:203] = 1500
+    frame[50, 50] = 300
+    frame[200:, :100] = 0
+    near, mean = nearest_depth_mm(frame), preprocess_depth_mm(frame)
+    assert near.shape == (32, 32) and near.dtype == np.float32
+    col = 200 * 32 // 424
+    np.testing.assert_allclose(near[:, col], 0.15, atol=1e-6)
+    assert mean[:, col].min() > 0.4
+    assert near.min() == pytest.approx(0.15)  # the speckle did not count
+    np.testing.assert_allclose(np.delete(near, col, axis=1)[:26, :], 0.6, atol=1e-6)
+    speckle = (50 * 32 // 240, 50 * 32 // 424)
+    assert near[speckle] > mean[speckle]  # the average counted it
+    mean[speckle] = near[speckle]
+    assert np.all(near <= mean + 1e-5)  # elsewhere nothing is farther than the average
+    pair = preprocess_depth_pair(frame)
+    np.testing.assert_array_equal(pair[0], preprocess_depth_mm(frame))
+    np.testing.assert_array_equal(pair[1], near)
+
+
+def test_nearest_view_refuses_what_the_network_input_refuses():
+    with pytest.raises(DepthFrameError, match="uint16"):
+        nearest_depth_mm(np.zeros((240, 424), np.float32))
+    with pytest.raises(DepthFrameError, match="valid pixels"):
+        nearest_depth_mm(np.zeros((240, 424), np.uint16))

@@ -16,6 +16,7 @@ from sim_harness.render import (
     cast_depth_m,
     render_depth_m,
     render_frame_mm,
+    render_inputs,
     render_network_inputs,
 )
 from sim_harness.world import Box, Cylinder, Sphere, World, load_world, paper_world_path
@@ -184,3 +185,18 @@ def test_inside_an_obstacle_reads_nothing_valid() -> None:
     """A camera inside a solid sees no valid depth (the quad has crashed)."""
     d = _depth(_world(Sphere((0.0, 0.0, 2.0), 1.0)))
     np.testing.assert_array_equal(d, 0.0)
+
+
+def test_the_shields_view_keeps_a_thin_pole_the_network_input_blends() -> None:
+    """A pole 18 cm thick 5 m ahead of a wall at 8 m, thinner than a cell (30 cm there): the
+    area-averaged input blends it with the wall; the nearest-surface view (same rays) reads its
+    ~4.95 m, and is nowhere farther than the input."""
+    w = _world(Box((8.5, 0.0, 3.0), (1.0, 12.0, 6.0)), Cylinder((5.0, 0.0, 3.0), 0.09, 6.0),
+               floor=0.0, ceiling=6.0)
+    mean, near = render_inputs(w, [(0.0, 0.0, 2.0)], [0.0], nearest=True)
+    assert render_inputs(w, [(0.0, 0.0, 2.0)], [0.0])[1] is None
+    np.testing.assert_array_equal(mean, render_network_inputs(w, [(0.0, 0.0, 2.0)], [0.0]))
+    assert near.shape == mean.shape == (1, 32, 32) and near.dtype == np.float32
+    assert np.all(near <= mean + 1e-7)
+    assert mean[0, 10:20].min() > 0.55  # blended with the wall behind
+    assert near[0, 10:20].min() == pytest.approx(0.495, abs=0.005)  # z-depth 4.95 m, /10 m

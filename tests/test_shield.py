@@ -13,10 +13,12 @@ from quadnav_onboard.shield import (
     ShieldConfig,
     allowed_actions,
     depth_points_heading,
+    points_per_view,
     primitive_clearance,
     primitive_samples,
     shield_at_scale,
     shield_config_from_meta,
+    view_points_heading,
 )
 
 ON = ShieldConfig(enabled=True)
@@ -61,7 +63,7 @@ def test_a_wall_ahead_vetoes_forward_primitives_and_keeps_hovering():
 
 
 def test_the_wall_is_remembered_after_it_leaves_the_field_of_view():
-    cfg = ShieldConfig(enabled=True, memory_steps=3)
+    cfg = ShieldConfig(enabled=True, memory_steps=3, shadow_m=0.0)
     mem = PointMemory(1, cfg)
     mem.add([0], wall_input(3.0, cfg)[None], np.zeros((1, 3)), np.zeros(1))
     # turned 90 deg left, looking at nothing: the wall (now on the right) is still in memory
@@ -96,8 +98,45 @@ def test_at_half_scale_the_memory_keeps_the_same_travel():
         shield_at_scale(written, 1.0, 0.0)
 
 
+def test_each_seen_point_casts_a_shadow_point_further_along_its_ray():
+    cfg = ShieldConfig(enabled=True, shadow_m=0.5)
+    depth = wall_input(3.0, cfg)
+    depth[:, :16] = 1.0  # the left half saw nothing
+    pts = view_points_heading(depth, cfg)
+    assert pts.shape == (points_per_view(cfg), 3) == (2048, 3)
+    surface, shadow = pts[:1024], pts[1024:]
+    seen = np.isfinite(surface[:, 0])
+    assert seen.sum() == 512 and np.array_equal(seen, np.isfinite(shadow[:, 0]))
+    r_surface = np.linalg.norm(surface[seen], axis=1)
+    np.testing.assert_allclose(np.linalg.norm(shadow[seen], axis=1), r_surface + 0.5, rtol=1e-5)
+    np.testing.assert_allclose(  # same ray
+        shadow[seen] / (r_surface + 0.5)[:, None], surface[seen] / r_surface[:, None], atol=1e-6
+    )
+    assert points_per_view(ShieldConfig(shadow_m=0.0)) == 1024
+    np.testing.assert_array_equal(view_points_heading(depth, ShieldConfig(shadow_m=0.0)), surface)
+
+
+def test_the_shadow_makes_the_unseen_back_of_a_ledge_solid():
+    """A ledge below the camera seen from 3 m (its front face fills the lower third of the view):
+    a point 0.6 m behind the seen face and 0.3 m below its top edge is solid in a pipe or a crate.
+    Surfaces alone leave it outside the 0.5 m clearance; with shadows it is inside."""
+    plain, shaded = ShieldConfig(enabled=True, shadow_m=0.0), ShieldConfig(enabled=True, shadow_m=0.5)
+    depth = np.ones((32, 32), np.float32)
+    depth[22:, :] = 3.0 / plain.max_range_m
+    mems = []
+    for cfg in (plain, shaded):
+        mem = PointMemory(1, cfg)
+        mem.add([0], depth[None], np.zeros((1, 3)), np.zeros(1))
+        mems.append(mem)
+    top = np.nanmax(depth_points_heading(depth, plain)[:, 2])  # the face's top edge (z, heading frame)
+    behind = np.array([3.6, 0.0, top - 0.3])[None, None, None, :]  # (1, 1, 1, 3) sample
+    c_plain = primitive_clearance(behind, mems[0].points, plain)[0, 0]
+    c_shaded = primitive_clearance(behind, mems[1].points, shaded)[0, 0]
+    assert c_plain > plain.clearance_m and c_shaded < 0.3
+
+
 def test_hovering_in_place_replaces_the_newest_view_instead_of_forgetting_old_ones():
-    cfg = ShieldConfig(enabled=True, memory_steps=2, min_travel_m=0.3)
+    cfg = ShieldConfig(enabled=True, memory_steps=2, min_travel_m=0.3, shadow_m=0.0)
     mem = PointMemory(1, cfg)
     mem.add([0], wall_input(5.0, cfg)[None], np.zeros((1, 3)), np.zeros(1))  # the old view
     for _ in range(5):  # hovering 1 m further on: one slot, rewritten
@@ -189,10 +228,10 @@ def test_a_camera_ahead_of_the_body_origin_places_what_it_sees_ahead_too():
     """camera_offset_m: a D435 0.1 m forward of the odometry's origin, heading 90 deg left: a wall at
     1.2 m depth is 1.3 m from the body, in the world's +y (placing it from the body origin, 0.1 m
     too close, errs on the safe side ahead); the view's recorded pose is the camera's."""
-    cfg = ShieldConfig(enabled=True, camera_offset_m=(0.1, 0.0, 0.05))
+    cfg = ShieldConfig(enabled=True, camera_offset_m=(0.1, 0.0, 0.05), shadow_m=0.0)
     yaw = np.array([math.pi / 2])
     pos = np.array([[2.0, 3.0, 1.5]])
-    plain, offset = PointMemory(1, ShieldConfig(enabled=True)), PointMemory(1, cfg)
+    plain, offset = PointMemory(1, ShieldConfig(enabled=True, shadow_m=0.0)), PointMemory(1, cfg)
     for mem in (plain, offset):
         mem.add([0], wall_input(1.2, cfg)[None], pos, yaw)
     ys = offset.points[0][np.isfinite(offset.points[0, :, 1]), 1]

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from quadnav_onboard.observation import ObservationHistory
 from quadnav_onboard.policy import Policy
-from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
+from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm, preprocess_depth_pair
 from quadnav_onboard.primitives import PrimitiveSet
 from quadnav_onboard.shield import (
     PointMemory,
@@ -65,6 +65,9 @@ class PreparedFrame:
     """The shield's clearance (m) of every primitive, with ``allowed``."""
     memory: PointMemory | None = None
     """The shield's memory with this view added, committed when the frame is decided on."""
+    shield_view: NDArray[np.float32] | None = None
+    """The shield's depth view of this frame (32, 32), when it differs from ``depth_input``
+    (``depth_pooling: min``, :func:`quadnav_onboard.preprocess.nearest_depth_mm`)."""
 
 
 @dataclass(frozen=True)
@@ -148,12 +151,18 @@ class Decider:
 
         Raises :class:`quadnav_onboard.preprocess.DepthFrameError` for an unusable frame.
         """
-        depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
+        view = None
+        if self.shield.enabled and self.shield.depth_pooling == "min":
+            depth_in, view = preprocess_depth_pair(frame.depth_mm, self.preprocess)
+        else:
+            depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
         features = self.policy.depth_features(history.depth_with(depth_in))
         allowed = clearance = after = None
         if memory is not None and motion is not None and self.shield.enabled:
-            allowed, clearance, after = self._verdict(memory, depth_in, motion)
-        prepared = PreparedFrame(frame, depth_in, features, history.version, allowed, clearance, after)
+            allowed, clearance, after = self._verdict(memory, depth_in if view is None else view, motion)
+        prepared = PreparedFrame(
+            frame, depth_in, features, history.version, allowed, clearance, after, shield_view=view
+        )
         self.prepared = prepared
         return prepared
 
@@ -182,7 +191,8 @@ class Decider:
             elif motion is None:
                 raise ValueError("the shield is on: decide() needs the vehicle's motion")
             else:
-                allowed, clearance, self.memory = self._verdict(self.memory, prepared.depth_input, motion)
+                view = prepared.depth_input if prepared.shield_view is None else prepared.shield_view
+                allowed, clearance, self.memory = self._verdict(self.memory, view, motion)
         self.history.push(prepared.depth_input, rel_pos_body_m)
         action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed)
         return Decision(action, q, prepared.depth_input, path, allowed, clearance)
