@@ -60,12 +60,24 @@ obstacles: []
 
 
 class CameraFeed:
-    """30 fps of one pre-rendered frame; ``cut`` stops the feed (cable pulled)."""
+    """30 fps of one pre-rendered frame; ``cut`` stops the feed (cable pulled).
+
+    The frame is the view down the wide corridor of paper Env 2 from 1.5 m, with the sim's
+    D435-like noise: a scene, so that the depth safety filter's nearest-surface view sees walls
+    and a floor. (Until 2026-12-01 it was uniform noise in 0.5-9 m, which the area-averaged input
+    saw as a far wall but the nearest-surface view sees as a wall at 0.5 m on every side.)"""
 
     def __init__(self, fps: float = 30.0) -> None:
+        from sim_harness.noise import DepthNoise
+        from sim_harness.render import D435_424x240, render_frame_mm
+        from sim_harness.world import load_world, paper_world_path
+
         self.fps = fps
-        rng = np.random.default_rng(0)
-        self.frame = rng.integers(500, 9000, size=(240, 424), dtype=np.uint16)
+        world = load_world(paper_world_path(2))
+        self.frame = render_frame_mm(
+            world, np.array([0.0, 0.0, 1.5]), quat_from_yaw(0.0), D435_424x240, DepthNoise(),
+            np.random.default_rng(0),
+        )
         self.cut = False
 
     async def __aenter__(self) -> CameraFeed:
