@@ -314,13 +314,14 @@ def _to_depth(t, min_r, max_r, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: no cover - compiled
-    """Camera depth rules then preprocessing (invalid -> norm_max, clip, /norm_max), ss x ss block mean."""
-    inv = 1.0 / (ss * ss * norm_max)
+def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, nearest, out):  # pragma: no cover - compiled
+    """Camera depth rules then preprocessing (invalid -> norm_max, clip, /norm_max) on each ray, then
+    per ss x ss block the mean or, with ``nearest``, the least value (the nearest surface)."""
+    inv = 1.0 / norm_max if nearest else 1.0 / (ss * ss * norm_max)
     for n in range(out.shape[0]):
         for i in range(out.shape[1]):
             for j in range(out.shape[2]):
-                acc = 0.0
+                acc = norm_max if nearest else 0.0
                 for a in range(ss):
                     for b in range(ss):
                         v = t[n, i * ss + a, j * ss + b]
@@ -328,27 +329,8 @@ def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: n
                             v = norm_max
                         elif v < norm_min:
                             v = norm_min
-                        acc += v
+                        acc = min(acc, v) if nearest else acc + v
                 out[n, i, j] = acc * inv
-
-
-@numba.njit(**_JIT)
-def _pool_nearest(t, ss, min_r, max_r, norm_min, norm_max, out):  # pragma: no cover - compiled
-    """As :func:`_pool_normalized`, but the ss x ss block's least value (the nearest surface)."""
-    inv = 1.0 / norm_max
-    for n in range(out.shape[0]):
-        for i in range(out.shape[1]):
-            for j in range(out.shape[2]):
-                best = norm_max
-                for a in range(ss):
-                    for b in range(ss):
-                        v = t[n, i * ss + a, j * ss + b]
-                        if not (min_r <= v <= max_r) or v > norm_max:
-                            v = norm_max
-                        elif v < norm_min:
-                            v = norm_min
-                        best = min(best, v)
-                out[n, i, j] = best * inv
 
 
 def _poses(pos_world_m: ArrayLike,
@@ -433,11 +415,11 @@ def render_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
     args = (supersample, camera.min_range_m, camera.max_range_m,
             preprocess.min_range_m, preprocess.max_range_m)
     out = np.empty((pos.shape[0], OUT_SIZE, OUT_SIZE), dtype=np.float32)
-    _pool_normalized(t, *args, out)
+    _pool_normalized(t, *args, False, out)
     if not nearest:
         return out, None
     near = np.empty_like(out)
-    _pool_nearest(t, *args, near)
+    _pool_normalized(t, *args, True, near)
     return out, near
 
 
