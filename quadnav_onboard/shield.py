@@ -113,6 +113,10 @@ class ShieldConfig:
     """Each remembered point also stands for what lies behind it: a second point this far (m)
     further along its ray, so the unseen back of a pipe or the far side of a trunk counts as solid
     when the vehicle moves round or over it. 0 = the seen surfaces only."""
+    known_floor: bool = True
+    """Also keep ``clearance_m`` from the floor plane when its height is known (the sim: each
+    world's floor; the daemon: world z = 0, as the supervisor's altitude band already assumes).
+    The camera cannot see the floor below the vehicle; descents onto it were what crashed."""
     camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Where the depth camera sits relative to the odometry's body origin, in the heading frame
     (m: forward, left, up). The sim's camera is at the origin; a D435 on a real airframe is
@@ -490,16 +494,22 @@ def shield_verdict(
     pos_world_m: ArrayLike,
     vel_world_m_s: ArrayLike,
     cfg: ShieldConfig = ShieldConfig(),
+    floor_z_m: ArrayLike | None = None,
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """The whole check for N vehicles, as the env and the flight daemon both run it: the allowed
     primitives (N, A) and their clearances (m, (N, A)). ``points_world_m``, ``view_depth_m`` and
     ``view_pose`` are a :class:`PointMemory`'s arrays (rows of these N vehicles), the view of this
-    decision already added; the rest as in :func:`primitive_samples`."""
+    decision already added; ``floor_z_m`` (N,) the floor's height under each vehicle (NaN or None:
+    unknown; used with ``known_floor``); the rest as in :func:`primitive_samples`."""
     samples = primitive_samples(
         prims, start_world_m, start_vel_world_m_s, yaw_rad, cfg,
         pos_world_m=pos_world_m, vel_world_m_s=vel_world_m_s,
     )
     clearance = primitive_clearance(samples, points_world_m, cfg)
+    if cfg.known_floor and floor_z_m is not None:
+        floor = np.broadcast_to(np.asarray(floor_z_m, dtype=np.float64), clearance.shape[:1])[:, None]
+        above = samples[..., 2].min(axis=-1) - floor  # NaN where the floor is unknown
+        clearance = np.where(above < clearance, np.maximum(above, 0.0), clearance)
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)

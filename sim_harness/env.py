@@ -134,6 +134,8 @@ class VecQuadNavEnv:
         self.depth = np.ones((n, kd, 32, 32), dtype=np.float32)
         self.rel = np.zeros((n, kp, 3), dtype=np.float32)
         self.memory = PointMemory(n, config.shield) if config.shield.enabled else None
+        self._floor_z = np.array([np.nan if w.floor_z_m is None else w.floor_z_m for w in self.worlds])
+        """Each world's floor height (m; NaN: none), for the shield's ``known_floor``."""
         self.clearance_m = np.full((n, self.prims.n_actions), config.shield.search_radius_m)
         """Shield clearance (m) of every primitive at the next decision (cap if the shield is off)."""
         self.allowed = np.ones((n, self.prims.n_actions), dtype=bool)
@@ -180,6 +182,7 @@ class VecQuadNavEnv:
         self.allowed[ids], self.clearance_m[ids] = shield_verdict(
             self.prims, mem.points[ids], mem.depth_m[ids], mem.pose[ids], self.cmd_pos_m[ids],
             self.cmd_vel_m_s[ids], yaw, self.pos_m[ids], self.vel_m_s[ids], self.config.shield,
+            floor_z_m=self._floor_z[self.world_idx[ids]],
         )
 
     def _stop_at_contact(

@@ -246,3 +246,24 @@ def test_a_camera_ahead_of_the_body_origin_places_what_it_sees_ahead_too():
 def test_a_bad_camera_offset_is_refused():
     with pytest.raises(ValueError, match="camera_offset_m"):
         ShieldConfig(camera_offset_m=(0.1, float("nan"), 0.0))
+
+
+def test_a_known_floor_vetoes_descents_onto_it_that_the_camera_cannot_see():
+    """0.7 m above the floor, nothing seen: with the floor known (z = 0), primitives that go down
+    1 m are vetoed and their clearance is their least height above it; level ones stay allowed.
+    Unknown (None, NaN) or ``known_floor: false``: the floor plays no part."""
+    from quadnav_onboard.shield import shield_verdict
+
+    mem = PointMemory(1, ON)
+    pos = np.array([[0.0, 0.0, 0.7]])
+    mem.add([0], np.ones((1, 32, 32), np.float32), pos, np.zeros(1))
+    still = (pos, np.zeros((1, 3)), np.zeros(1), pos, np.zeros((1, 3)))
+    allowed, clearance = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, ON, floor_z_m=[0.0])
+    for a, (f, lat, v) in enumerate(DEFAULT_DIRECTIONS):
+        assert allowed[0, a] == (v >= 0), (f, lat, v)
+    down = DEFAULT_DIRECTIONS.index((0, 0, -1))
+    assert clearance[0, down] == 0.0  # its samples reach below the floor
+    assert clearance[0, FORWARD] == pytest.approx(0.7)
+    for floor, cfg in (([np.nan], ON), (None, ON), ([0.0], ShieldConfig(enabled=True, known_floor=False))):
+        unknown, _ = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, cfg, floor_z_m=floor)
+        assert unknown.all()

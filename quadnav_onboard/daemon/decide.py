@@ -40,7 +40,11 @@ from quadnav_onboard.shield import (
 )
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 
-__all__ = ["Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
+__all__ = ["FLOOR_Z_M", "Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
+
+FLOOR_Z_M = 0.0
+"""The floor's height in the odometry's world frame (m): the supervisor's altitude band
+(``safety.altitude_floor_m``) already reads world z as height above it."""
 
 DecisionPath = Literal["prepared", "waited", "full"]
 """How a step got its prepared frame: ready at the step boundary; being prepared at the boundary
@@ -207,5 +211,6 @@ class Decider:
         allowed, clearance = shield_verdict(
             self.prims, mem.points, mem.depth_m, mem.pose, m.start_world_m[None],
             m.start_vel_world_m_s[None], yaw, pos, m.vel_world_m_s[None], cfg,
+            floor_z_m=FLOOR_Z_M,
         )
         return allowed[0], clearance[0], mem
