@@ -508,8 +508,8 @@ def shield_verdict(
     clearance = primitive_clearance(samples, points_world_m, cfg)
     if cfg.known_floor and floor_z_m is not None:
         floor = np.broadcast_to(np.asarray(floor_z_m, dtype=np.float64), clearance.shape[:1])[:, None]
-        above = samples[..., 2].min(axis=-1) - floor  # NaN where the floor is unknown
-        clearance = np.where(above < clearance, np.maximum(above, 0.0), clearance)
+        above = np.maximum(samples[..., 2].min(axis=-1) - floor, 0.0)  # NaN: floor unknown
+        clearance = np.fmin(clearance, above)  # fmin keeps clearance where above is NaN
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)

@@ -12,8 +12,10 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from quadnav_onboard.policy import Policy
     from quadnav_onboard.shield import ShieldConfig
+    from sim_harness.env import EnvConfig
+    from sim_harness.world import World
 
-__all__ = ["add_flight_flags", "add_parser", "run", "shield_from_flags"]
+__all__ = ["add_flight_flags", "add_parser", "at_flight_scale", "run", "shield_from_flags"]
 
 
 def shield_from_flags(policy: Policy, args: argparse.Namespace) -> ShieldConfig:
@@ -28,11 +30,31 @@ def shield_from_flags(policy: Policy, args: argparse.Namespace) -> ShieldConfig:
     return override_shield(shield, args.shield_set)
 
 
+def at_flight_scale(
+    env_cfg: EnvConfig, worlds: list[World], args: argparse.Namespace, max_steps: int | None = None
+) -> tuple[EnvConfig, list[World]]:
+    """The env and worlds at ``--primitive-scale`` (default: the checkpoint's own, ``env_cfg``'s);
+    unchanged at the scale world files are written for."""
+    from sim_harness.env import REFERENCE_SCALE_M, at_primitive_scale
+
+    scale = args.primitive_scale if args.primitive_scale is not None else env_cfg.primitives.scale_m
+    if scale == REFERENCE_SCALE_M:
+        return env_cfg, worlds
+    return at_primitive_scale(env_cfg, worlds, scale, max_steps)
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
 def add_flight_flags(p: argparse.ArgumentParser, shield_default: str) -> None:
     """How the flights are flown, shared by ``eval`` and ``select``: the filter and the scale."""
     p.add_argument(
         "--primitive-scale",
-        type=float,
+        type=_positive,
         default=None,
         metavar="M",
         help="fly primitives of M metres per axis, the moving setpoint slowed to match (real flights: "
@@ -105,7 +127,6 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from sim_harness.env import REFERENCE_SCALE_M, at_primitive_scale
     from sim_harness.rl.evaluate import (
         env_config_for_policy,
         evaluate,
@@ -117,9 +138,6 @@ def run(args: argparse.Namespace) -> int:
 
     if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
         print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
-        return 2
-    if args.primitive_scale is not None and not args.primitive_scale > 0:
-        print("quadnav-sim eval: --primitive-scale must be > 0", file=sys.stderr)
         return 2
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
     try:
@@ -137,9 +155,7 @@ def run(args: argparse.Namespace) -> int:
             paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
         shield = shield_from_flags(policy, args)
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps or 120, shield=shield)
-        scale = args.primitive_scale if args.primitive_scale is not None else env_cfg.primitives.scale_m
-        if scale != REFERENCE_SCALE_M:  # also a model trained at another scale, by default
-            env_cfg, worlds = at_primitive_scale(env_cfg, worlds, scale, args.max_steps)
+        env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, args.max_steps)
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2

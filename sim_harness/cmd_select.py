@@ -49,21 +49,13 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import Policy
-    from sim_harness.cmd_eval import shield_from_flags
-    from sim_harness.env import REFERENCE_SCALE_M, at_primitive_scale
+    from sim_harness.cmd_eval import at_flight_scale, shield_from_flags
     from sim_harness.procgen import procedural_worlds
-    from sim_harness.rl.evaluate import (
-        env_config_for_policy,
-        evaluate,
-        policy_greedy_fn,
-    )
+    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
     from sim_harness.world import load_world, paper_world_path
 
     if args.trials < 1 or args.max_steps < 1:
         print("quadnav-sim select: --trials and --max-steps must be >= 1", file=sys.stderr)
-        return 2
-    if args.primitive_scale is not None and not args.primitive_scale > 0:
-        print("quadnav-sim select: --primitive-scale must be > 0", file=sys.stderr)
         return 2
     try:
         policies = [Policy.from_path(m) for m in args.models]
@@ -80,11 +72,8 @@ def run(args: argparse.Namespace) -> int:
     for model, policy, shield in zip(args.models, policies, shields, strict=True):
         env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
         parts = {}
-        for name, worlds, seeds in sets:
-            scale = args.primitive_scale if args.primitive_scale is not None else env_cfg.primitives.scale_m
-            env_cfg_s = env_cfg
-            if scale != REFERENCE_SCALE_M:
-                env_cfg_s, worlds = at_primitive_scale(env_cfg, worlds, scale)
+        for name, written, seeds in sets:
+            env_cfg_s, worlds = at_flight_scale(env_cfg, written, args)
             for seed in seeds:
                 rows = evaluate(policy_greedy_fn(policy), worlds, args.trials, seed, env_cfg_s)
                 parts[f"{name}_seed{seed}"] = {

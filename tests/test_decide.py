@@ -144,6 +144,19 @@ def test_the_shield_sees_a_thin_pole_that_the_network_input_blurs(policy: Policy
     assert verdicts["min"].clearance_m[fwd] < 0.5 < verdicts["mean"].clearance_m[fwd]
 
 
+def test_the_daemons_filter_knows_the_floor_at_world_z_zero(policy: Policy) -> None:
+    """0.7 m up, a far wall ahead: the step straight down (below the camera's view) is vetoed
+    because the floor is known (``decide.FLOOR_Z_M``), and allowed with ``known_floor: false``."""
+    down = DEFAULT_DIRECTIONS.index((0, 0, -1))
+    verdict = {}
+    for known in (True, False):
+        d = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True, known_floor=known))
+        prepared = d.prepare(_wall_frame(9000), d.snapshot())
+        verdict[known] = d.decide(prepared, np.zeros(3), "full", _still((0.0, 0.0, 0.7)))
+    assert not verdict[True].allowed[down] and verdict[True].clearance_m[down] == 0.0
+    assert verdict[False].allowed[down]
+
+
 def test_the_shield_needs_the_vehicles_motion(policy: Policy) -> None:
     decider = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True))
     prepared = decider.prepare(_wall_frame(5000), decider.snapshot())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from quadnav_onboard.checkpoint import save_checkpoint
 from quadnav_onboard.network import DQN, NetworkConfig
@@ -142,3 +143,11 @@ def test_eval_at_the_flight_scale_goes_slower_and_says_so(tmp_path) -> None:
         assert row["outcome"] == "goal"
         steps[scale] = row["time_s"]  # steps x 1 s primitives
     assert 1.8 * steps["1.0"] <= steps["0.5"] <= 2.2 * steps["1.0"]
+
+
+@pytest.mark.parametrize("command", ["eval", "select"])
+def test_a_scale_that_is_not_positive_is_refused_before_any_flight(command: str, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--primitive-scale", "0", "--no-progress"])
+    assert exc.value.code == 2
+    assert "--primitive-scale: must be > 0, got 0" in capsys.readouterr().err

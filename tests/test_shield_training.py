@@ -206,3 +206,54 @@ def test_init_model_starts_from_its_weights_and_a_mismatch_fails_before_a_run_di
     with pytest.raises(ConfigError, match="init_model"):
         train(bad, progress=False)
     assert not (tmp_path / "bad_runs").exists()
+
+
+def _low_world(floor: bool) -> object:
+    spec = {"name": "low", "path": {"waypoints": [[0, 0, 0.7], [12, 0, 0.7]]}}
+    if floor:
+        spec["bounds"] = {"floor_z": 0.0}
+    return parse_world(spec, "test")
+
+
+def test_the_env_gives_the_filter_each_worlds_floor() -> None:
+    """0.7 m above a world's floor, the env's verdict vetoes every primitive that goes down 1 m.
+    Without ``known_floor`` the camera's view of the floor ahead still vetoes the forward descents,
+    but not the straight ones onto the floor below, which it cannot see (the crashes this fixes);
+    a world without a floor vetoes nothing."""
+    down = [a for a, d in enumerate(DEFAULT_DIRECTIONS) if d[2] < 0]
+    straight_down = [a for a, d in enumerate(DEFAULT_DIRECTIONS) if d[2] < 0 and d[0] == 0]
+    level = [a for a, d in enumerate(DEFAULT_DIRECTIONS) if d[2] >= 0]
+    unknown = EnvConfig(start_jitter_m=0.0, shield=ShieldConfig(enabled=True, known_floor=False))
+    allowed = {}
+    for name, world, cfg in (
+        ("known", _low_world(True), SHIELDED),
+        ("no floor", _low_world(False), SHIELDED),
+        ("unknown", _low_world(True), unknown),
+    ):
+        env = VecQuadNavEnv([world], 1, seed=0, config=cfg, autoreset=False)
+        env.reset()
+        assert env.allowed[0, level].all(), name
+        allowed[name] = env.allowed[0].copy()
+    assert not allowed["known"][down].any()
+    assert allowed["no floor"][down].all()
+    forward_down = sorted(set(down) - set(straight_down))
+    assert allowed["unknown"][straight_down].all() and not allowed["unknown"][forward_down].any()
+
+
+def test_the_env_remembers_the_nearest_surface_view() -> None:
+    """A pole thinner than a cell 5 m ahead of a wall at 8 m: with ``depth_pooling: min`` the
+    filter's memory holds it at ~4.95 m; with ``mean`` it holds the blend, well behind it."""
+    world = _world([
+        {"type": "box", "center": [8.5, 0, 2], "size": [1, 12, 8]},
+        {"type": "cylinder", "center": [5, 0, 2], "radius": 0.09, "height": 8},
+    ])
+    nearest = {}
+    for pooling in ("min", "mean"):
+        cfg = EnvConfig(start_jitter_m=0.0, shield=ShieldConfig(enabled=True, depth_pooling=pooling))
+        env = VecQuadNavEnv([world], 1, seed=0, config=cfg, autoreset=False)
+        depth, _ = env.reset()
+        assert env.memory is not None
+        nearest[pooling] = float(env.memory.depth_m[0, -1].min())
+        assert depth[0, -1].min() > 0.55  # the network's input blends the pole either way
+    assert nearest["min"] == pytest.approx(4.95, abs=0.05)
+    assert nearest["mean"] > 5.5

@@ -1,0 +1,92 @@
+"""Cost of the depth safety filter per frame, as the daemon pays it (issue 4's filter, issue 6's budget).
+
+For each filter variant: ``Decider.prepare`` on one frame (preprocessing, depth lane and the filter's
+verdict against a full memory), the shipped model, one torch thread. The frame is the one
+``bench_daemon.py`` streams (the sim's noisy view down Env 2's corridor); the memory is filled with
+that frame seen from points 0.25 m apart along the path, as in a flight.
+
+    .venv/bin/python benchmarks/bench_shield.py [--scale 0.5] [--calls 300] [--json OUT]
+
+Prints median and p99 (ms) per variant: the first filter (area-averaged view, no shadows, no
+floor), the shipped one, and the shipped one at the memory its scale implies.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_daemon import CameraFeed
+
+from quadnav_onboard.daemon.decide import Decider, Motion
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+from quadnav_onboard.primitives import PrimitiveSet
+from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
+from quadnav_onboard.sources.base import DepthFrame
+
+
+def _motion(x: float) -> Motion:
+    p = np.array([x, 0.0, 1.5])
+    return Motion(p, np.zeros(3), p.copy(), np.zeros(3), 0.0)
+
+
+def time_prepare(policy: Policy, shield: ShieldConfig, scale_m: float, calls: int) -> dict[str, float]:
+    prims = PrimitiveSet(scale_m=scale_m, duration_s=scale_m)
+    decider = Decider(policy, policy.preprocess_config(), prims, shield)
+    frame = DepthFrame(CameraFeed().frame, 0.0, 0)
+    memory = decider.memory
+    for k in range(decider.shield.memory_steps):  # a full memory, views 0.25 m apart
+        memory = decider.prepare(frame, decider.snapshot(), _motion(0.25 * k), memory).memory
+    motion = _motion(0.25 * decider.shield.memory_steps)
+    ts = []
+    for _ in range(calls + 20):
+        t0 = time.perf_counter()
+        decider.prepare(frame, decider.snapshot(), motion, memory)
+        ts.append(time.perf_counter() - t0)
+    ms = np.array(ts[20:]) * 1e3
+    return {
+        "memory_steps": decider.shield.memory_steps,
+        "median_ms": round(float(np.median(ms)), 3),
+        "p99_ms": round(float(np.percentile(ms, 99)), 3),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scale", type=float, default=0.25, help="primitive scale flown (bench_daemon: 0.25)")
+    ap.add_argument("--calls", type=int, default=300)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    import torch
+
+    torch.set_num_threads(1)
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    shipped = shield_config_from_meta(policy.checkpoint.meta)
+    variants = {
+        "first (mean view, no shadow, no floor)": dataclasses.replace(
+            shipped, depth_pooling="mean", shadow_m=0.0, known_floor=False
+        ),
+        "shipped": shipped,
+        "shield off": dataclasses.replace(shipped, enabled=False),
+    }
+    out = {"scale_m": args.scale, "calls": args.calls, "prepare": {}}
+    for name, cfg in variants.items():
+        r = time_prepare(policy, cfg, args.scale, args.calls)
+        out["prepare"][name] = r
+        print(f"{name:40s} memory {r['memory_steps']:3d}  prepare median {r['median_ms']:.3f} ms  "
+              f"p99 {r['p99_ms']:.3f} ms")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
+        print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
