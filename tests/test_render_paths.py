@@ -25,15 +25,20 @@ from sim_harness.render import (
 from sim_harness.world import load_world, paper_world_path
 
 
-@pytest.mark.parametrize(("world_id", "camera"), [(3, D435_424x240), (8, D435_424x240), (10, D435_848x480)])
-def test_network_inputs_match_preprocessed_full_frames(world_id: int, camera) -> None:
-    """render_network_inputs ~= preprocess_depth_mm(render_frame_mm(...)) at poses a quad can be in."""
+def _world_and_poses(world_id: int):
+    """A paper world and up to 24 seeded poses a quad can be in along it (position, yaw)."""
     w = load_world(paper_world_path(world_id))
     rng = np.random.default_rng(world_id)
     pos = np.stack([rng.uniform(2, 58, 24), rng.uniform(-0.5, 0.5, 24), rng.uniform(1.5, 2.5, 24)], -1)
     yaw = rng.uniform(-0.4, 0.4, 24)
     keep = clearance_m(w, pos) > 0.3
-    pos, yaw = pos[keep], yaw[keep]
+    return w, pos[keep], yaw[keep]
+
+
+@pytest.mark.parametrize(("world_id", "camera"), [(3, D435_424x240), (8, D435_424x240), (10, D435_848x480)])
+def test_network_inputs_match_preprocessed_full_frames(world_id: int, camera) -> None:
+    """render_network_inputs ~= preprocess_depth_mm(render_frame_mm(...)) at poses a quad can be in."""
+    w, pos, yaw = _world_and_poses(world_id)
     fast = render_network_inputs(w, pos, yaw, camera=camera)
     full = np.stack([preprocess_depth_mm(render_frame_mm(w, p, quat_from_yaw(y), camera))
                      for p, y in zip(pos, yaw, strict=True)])
@@ -62,12 +67,7 @@ def test_the_flight_filters_nearest_view_is_never_farther_than_the_sims(world_id
     (cells up to 8.6 m nearer measured here, 4-13 % of cells > 0.2 m nearer) but never anything
     farther (measured: < 1e-4), so the sim's evaluation of the filter errs on the optimistic side,
     the flight on the cautious one. Mean |diff| measured 0.010-0.011."""
-    w = load_world(paper_world_path(world_id))
-    rng = np.random.default_rng(world_id)
-    pos = np.stack([rng.uniform(2, 58, 24), rng.uniform(-0.5, 0.5, 24), rng.uniform(1.5, 2.5, 24)], -1)
-    yaw = rng.uniform(-0.4, 0.4, 24)
-    keep = clearance_m(w, pos) > 0.3
-    pos, yaw = pos[keep], yaw[keep]
+    w, pos, yaw = _world_and_poses(world_id)
     _, sim = render_inputs(w, pos, yaw, camera=camera, nearest=True)
     flight = np.stack([nearest_depth_mm(render_frame_mm(w, p, quat_from_yaw(y), camera))
                        for p, y in zip(pos, yaw, strict=True)])
