@@ -62,7 +62,10 @@ def _slalom_lr(rng: np.random.Generator, ceiling: float) -> list[dict]:
 def _slalom_ud(rng: np.random.Generator, ceiling: float) -> list[dict]:
     out, x, up = [], float(rng.uniform(7.0, 11.0)), bool(rng.random() < 0.5)
     while x < LENGTH_M - 3.0:
-        reach = float(rng.uniform(0.2, 1.1))
+        # how far past the path it reaches; one that hangs from the ceiling must leave MIN_GAP_M
+        # above the floor (the path is only ALT_M up), one standing on the floor MIN_GAP_M below
+        # the ceiling (>= 5.5 m: always). One draw either way, so the stream is the same.
+        reach = float(rng.uniform(0.2, ALT_M - MIN_GAP_M if up else 1.1))
         thick = float(rng.uniform(0.3, 1.2))
         if up:  # hanging from the ceiling down past the path
             z0, z1 = ALT_M - reach, ceiling

@@ -41,6 +41,18 @@ def test_clutter_keeps_the_minimum_gap_between_obstacles():
             assert np.hypot(x1 - x2, y1 - y2) - r1 - r2 >= MIN_GAP_M - 1e-6
 
 
+def test_up_down_slaloms_leave_the_minimum_gap_below_or_above_each_obstacle():
+    """Every panel or pipe leaves MIN_GAP_M between it and the floor or the ceiling: the quad can
+    always pass under or over it."""
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        w = random_world(rng, "slalom_ud")
+        for ob in w.obstacles:
+            half = ob.radius_m if hasattr(ob, "radius_m") else ob.size_m[2] / 2
+            lo, hi = ob.center_m[2] - half, ob.center_m[2] + half
+            assert max(lo - w.floor_z_m, w.ceiling_z_m - hi) >= MIN_GAP_M - 1e-6, (w.name, ob)
+
+
 def test_unknown_family_is_an_error():
     with pytest.raises(ValueError, match="unknown world family"):
         random_world(np.random.default_rng(0), "maze")
