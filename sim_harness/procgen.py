@@ -5,7 +5,9 @@ Seven hand-made worlds are few: an agent trained only on them learns *those* wor
 same families -- corridors of varying width, left-right and up-down slaloms, and clutter of poles,
 spheres and crates -- from a seeded numpy Generator, as world-file mappings validated by
 :func:`sim_harness.world.parse_world`. Each family leaves a gap of at least ``MIN_GAP_M`` for the
-quad (radius 0.3 m) by construction. Never used for evaluation.
+quad (radius 0.3 m) by construction, under or over each obstacle of an up-down slalom
+(tests/test_procgen.py). Seeds keep the roles apart: the training set (``TrainConfig.procedural_seed``),
+the development set of ``quadnav-sim select`` (777) and the test set of ``docs/results.md`` (4242).
 """
 
 from __future__ import annotations
