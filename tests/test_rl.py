@@ -8,7 +8,7 @@ import torch
 
 from quadnav_onboard.network import NetworkConfig
 from sim_harness.rl.agent import AgentConfig, DQNAgent
-from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
+from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
 from sim_harness.rl.schedules import LinearSchedule, linear_schedule
 
 
@@ -133,3 +133,52 @@ def test_epsilon_one_is_uniform_and_zero_is_greedy() -> None:
     assert len(set(greedy.tolist())) == 1
     random = agent.act(depth, rel, 1.0, rng)
     assert len(set(random.tolist())) == 18
+
+
+def test_prioritized_replay_samples_in_proportion_to_priority() -> None:
+    """P(i) = p_i^α / Σ p^α: with α = 1 and |TD errors| 1 and 3, the second is drawn 3 times as
+    often, and its importance weight (N P)^-β is the smaller one (the largest weight is 1)."""
+    buf = PrioritizedReplayBuffer(10, (1, 32, 32), (1, 3), seed=0, alpha=1.0, eps=1e-9)
+    idx = buf.add(**_transitions(2))
+    buf.update_priorities(idx, np.array([1.0, 3.0]))
+    batch = buf.sample(40_000, beta=1.0)
+    share = (batch.rel[:, 0, 0] == 1).mean()
+    assert abs(share - 0.75) < 0.01
+    w = {int(i): float(wi) for i, wi in zip(batch.rel[:, 0, 0], batch.weight, strict=True)}
+    # weights (N P)^-β normalised by the largest: (2 * 3/4)^-1 / (2 * 1/4)^-1 = 1/3
+    assert w[0] == pytest.approx(1.0) and w[1] == pytest.approx(1 / 3, rel=1e-5)
+
+
+def test_prioritized_replay_new_transitions_get_the_largest_priority_and_alpha_0_is_uniform() -> None:
+    buf = PrioritizedReplayBuffer(10, (1, 32, 32), (1, 3), seed=1, alpha=0.6)
+    first = buf.add(**_transitions(2))
+    buf.update_priorities(first, np.array([5.0, 0.0]))
+    new = buf.add(**_transitions(1, offset=2))
+    assert buf.priority[new[0]] == pytest.approx(buf.priority[first[0]])  # max so far, not the default 1
+    assert buf.priority[first[1]] < buf.priority[first[0]]
+    flat = PrioritizedReplayBuffer(10, (1, 32, 32), (1, 3), seed=2, alpha=0.0)
+    flat.update_priorities(flat.add(**_transitions(4)), np.array([0.0, 1.0, 10.0, 100.0]))
+    counts = np.bincount(flat.sample(40_000).rel[:, 0, 0].astype(int), minlength=4) / 40_000
+    np.testing.assert_allclose(counts, 0.25, atol=0.01)
+    with pytest.raises(ValueError, match="alpha"):
+        PrioritizedReplayBuffer(10, (1, 32, 32), (1, 3), seed=0, alpha=-1.0)
+
+
+def test_weighted_update_ignores_zero_weight_samples_and_reports_td_errors() -> None:
+    """A sample of weight 0 contributes no gradient: the update equals one on the other samples."""
+    t = _transitions(4)
+    t["done"] = np.ones(4, np.float32)
+    buf = ReplayBuffer(4, (1, 32, 32), (1, 3), seed=0)
+    buf.add(**t)
+    full = buf._batch(np.arange(4))
+    agents = []
+    for _ in range(2):
+        torch.manual_seed(0)
+        agents.append(DQNAgent(NetworkConfig(), AgentConfig(target_update_interval=10_000)))
+    full.weight = np.array([1.0, 1.0, 1.0, 0.0], np.float32)
+    part = buf._batch(np.arange(3))
+    part.weight = np.full(3, 0.75, np.float32)  # the mean runs over 4 samples there, 3 here
+    assert agents[0].update(full, gamma=0.9) == pytest.approx(agents[1].update(part, gamma=0.9), rel=1e-5)
+    for a, b in zip(agents[0].q.parameters(), agents[1].q.parameters(), strict=True):
+        torch.testing.assert_close(a, b)
+    assert agents[0].last_td_abs.shape == (4,) and (agents[0].last_td_abs > 0).all()

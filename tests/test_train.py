@@ -72,6 +72,16 @@ def test_smoke_train_then_evaluate(tmp_path) -> None:
     assert len(eval_rows) == 2 and summarize(eval_rows)["trials"] == 2
 
 
+def test_prioritized_replay_trains_end_to_end_and_changes_what_is_learned(tmp_path) -> None:
+    per = train(_tiny(tmp_path / "per", episodes=4, prioritized_replay=True, per_alpha=1.0), progress=False)
+    uni = train(_tiny(tmp_path / "uni", episodes=4), progress=False)
+    assert per.updates == uni.updates > 0
+    assert json.loads((per.run_dir / "config.json").read_text())["prioritized_replay"] is True
+    wp = load_checkpoint(per.model_path).model.state_dict()
+    wu = load_checkpoint(uni.model_path).model.state_dict()
+    assert not all(torch.equal(wp[k], wu[k]) for k in wp)  # same seed: only the replay differs
+
+
 def test_checkpoint_round_trips_with_its_training_settings(tmp_path) -> None:
     result = train(_tiny(tmp_path, episodes=4), progress=False)
     ckpt = load_checkpoint(result.model_path)

@@ -1,7 +1,9 @@
 """The DQN learner: online and target Q-networks, Huber loss, Adam, ε-greedy acting.
 
 Options beyond the paper (all off by default): Double DQN targets, a dueling head (in the network
-config), n-step returns (the buffer supplies ``n``; the target bootstraps with ``γ**n``).
+config), n-step returns (the buffer supplies ``n``; the target bootstraps with ``γ**n``), and
+importance-weighted losses for prioritised replay (``Batch.weight``; the update keeps each sample's
+|TD error| in ``last_td_abs`` for the buffer's new priorities).
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ class DQNAgent:
         self.target.eval()
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=config.learning_rate)
         self.n_updates = 0
+        self.last_td_abs: NDArray[np.float32] = np.zeros(0, dtype=np.float32)
+        """|target - Q(s, a)| of each sample of the last update (prioritised replay's priorities)."""
 
     def greedy(
         self, depth: NDArray[np.float32], rel: NDArray[np.float32], allowed: NDArray[np.bool_] | None = None
@@ -103,12 +107,18 @@ class DQNAgent:
             return reward + discount * (1.0 - done) * v_next
 
     def update(self, batch: Batch, gamma: float) -> float:
-        """One gradient step of the Huber TD loss; returns the loss value."""
+        """One gradient step of the Huber TD loss (weighted by ``batch.weight`` when given);
+        returns the loss value."""
         depth, rel = self._t(batch.depth), self._t(batch.rel)
         action = self._t(batch.action)
         target = self.td_target(batch, gamma)
         q_sa = self.q(depth, rel).gather(1, action[:, None]).squeeze(1)
-        loss = F.smooth_l1_loss(q_sa, target)
+        if batch.weight is None:
+            loss = F.smooth_l1_loss(q_sa, target)
+        else:
+            per_sample = F.smooth_l1_loss(q_sa, target, reduction="none")
+            loss = (self._t(batch.weight) * per_sample).mean()
+        self.last_td_abs = (target - q_sa).detach().abs().cpu().numpy()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if self.config.max_grad_norm > 0:

@@ -102,6 +102,13 @@ class TrainConfig:
     """Depth frames stacked as input (1 = the paper)."""
     position_history: Annotated[int, pydantic.Field(ge=1)] = 1
     """Relative positions stacked as input (1 = the paper)."""
+    prioritized_replay: bool = False
+    """Prioritised replay (beyond the paper): transitions sampled in proportion to |TD error|^α,
+    the loss weighted by importance sampling (sim_harness.rl.replay.PrioritizedReplayBuffer)."""
+    per_alpha: Annotated[float, pydantic.Field(ge=0)] = 0.6
+    """Priority exponent α of prioritised replay (0 = uniform; Schaul et al. 2016: 0.6)."""
+    per_beta_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.4
+    """Importance-sampling exponent β at episode 0; it grows linearly to 1 at the last episode."""
     shield: bool = False
     """Depth safety filter in the loop (beyond the paper): acting (greedy and random) and the TD
     target keep to the primitives it allows; the checkpoint records it, so eval and the daemon

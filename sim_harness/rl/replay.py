@@ -5,6 +5,12 @@ memory; everything else as float32. A transition is ``(depth, rel, action, rewar
 next_rel, done, n)`` where ``reward`` is the (possibly n-step) discounted return, ``n`` the number
 of steps it spans and ``done`` whether the episode terminated inside it (no bootstrap). Sampling
 uses the buffer's own seeded numpy Generator. Memory is bounded by ``capacity``.
+
+:class:`PrioritizedReplayBuffer` (beyond the paper) samples in proportion to each transition's last
+TD error (Schaul et al. 2016, "Prioritized Experience Replay", proportional variant) and returns
+the importance-sampling weights that correct the bias. Sampling draws from the cumulative sum of
+the priorities, O(capacity) per minibatch: for the 200k-transition buffers used here that is a
+fraction of a millisecond against a gradient step's ~10 ms, so no sum tree is needed.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Batch", "NStepAccumulator", "ReplayBuffer"]
+__all__ = ["Batch", "NStepAccumulator", "PrioritizedReplayBuffer", "ReplayBuffer"]
 
 
 @dataclass
@@ -41,6 +47,8 @@ class Batch:
     next_allowed: NDArray[np.bool_] | None = None
     """(B, n_actions) actions the shield allowed in the next state (the target's max runs over
     them); None when every action was allowed."""
+    weight: NDArray[np.float32] | None = None
+    """(B,) importance-sampling weights of a prioritised sample (largest 1); None = uniform."""
 
 
 class ReplayBuffer:
@@ -85,12 +93,12 @@ class ReplayBuffer:
         done: NDArray,
         n: NDArray | None = None,
         next_allowed: NDArray | None = None,
-    ) -> None:
+    ) -> NDArray[np.int64]:
         """Store a batch of M transitions (leading axis M on every array); ``next_allowed``
-        (M, n_actions) defaults to every action allowed."""
+        (M, n_actions) defaults to every action allowed. Returns the slots written."""
         m = len(action)
         if m == 0:
-            return
+            return np.zeros(0, dtype=np.int64)
         if m > self.capacity:
             raise ValueError(f"cannot add {m} transitions to a buffer of capacity {self.capacity}")
         idx = (self._next + np.arange(m)) % self.capacity
@@ -106,12 +114,15 @@ class ReplayBuffer:
         self._masked |= next_allowed is not None
         self._next = int((self._next + m) % self.capacity)
         self._size = min(self._size + m, self.capacity)
+        return idx
 
     def sample(self, batch_size: int) -> Batch:
         """A uniform minibatch (with replacement) of stored transitions."""
         if self._size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
-        idx = self.rng.integers(0, self._size, size=batch_size)
+        return self._batch(self.rng.integers(0, self._size, size=batch_size))
+
+    def _batch(self, idx: NDArray[np.int64]) -> Batch:
         return Batch(
             depth=self.depth[idx].astype(np.float32),
             rel=self.rel[idx],
@@ -191,3 +202,52 @@ class NStepAccumulator:
             if name != "next_allowed" or next_allowed is not None
         }
         return batch
+
+
+class PrioritizedReplayBuffer(ReplayBuffer):
+    """Proportional prioritised replay: P(i) = p_i^α / Σ p^α with p_i = |TD error_i| + ``eps``;
+    new transitions get the largest priority so far, so each is replayed at least about once."""
+
+    def __init__(
+        self,
+        capacity: int,
+        depth_shape: tuple[int, ...],
+        rel_shape: tuple[int, ...],
+        seed: int,
+        n_actions: int = 18,
+        alpha: float = 0.6,
+        eps: float = 1e-3,
+    ) -> None:
+        super().__init__(capacity, depth_shape, rel_shape, seed, n_actions)
+        if not alpha >= 0 or not eps > 0:
+            raise ValueError(f"need alpha >= 0 and eps > 0, got {alpha} and {eps}")
+        self.alpha, self.eps = float(alpha), float(eps)
+        self.priority = np.zeros(capacity, dtype=np.float64)
+        """p_i^α of every slot (0 for empty slots: never sampled)."""
+        self._max_priority = 1.0
+
+    def add(self, *args, **kwargs) -> NDArray[np.int64]:  # type: ignore[no-untyped-def]
+        idx = super().add(*args, **kwargs)
+        self.priority[idx] = self._max_priority**self.alpha
+        return idx
+
+    def sample(self, batch_size: int, beta: float = 0.4) -> Batch:  # type: ignore[override]
+        """A minibatch drawn in proportion to priority, with weights (N P(i))^-β / max_j (N P(j))^-β
+        (β = 1 corrects the sampling bias fully)."""
+        if self._size == 0:
+            raise ValueError("cannot sample from an empty replay buffer")
+        cum = np.cumsum(self.priority[: self._size])
+        total = cum[-1]
+        idx = np.searchsorted(cum, self.rng.random(batch_size) * total, side="right")
+        idx = np.minimum(idx, self._size - 1)
+        prob = self.priority[idx] / total
+        weight = (self._size * prob) ** (-float(beta))
+        batch = self._batch(idx)
+        batch.weight = (weight / weight.max()).astype(np.float32)
+        return batch
+
+    def update_priorities(self, index: NDArray[np.int64], td_abs: NDArray) -> None:
+        """Set the priorities of the sampled slots from their new |TD errors|."""
+        p = np.abs(np.asarray(td_abs, dtype=np.float64)) + self.eps
+        self.priority[index] = p**self.alpha
+        self._max_priority = max(self._max_priority, float(p.max()))

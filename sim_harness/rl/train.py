@@ -30,7 +30,7 @@ from sim_harness.env import REFERENCE_SCALE_M, EnvConfig, VecQuadNavEnv, at_prim
 from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
-from sim_harness.rl.replay import NStepAccumulator, ReplayBuffer
+from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
 from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.world import load_world, paper_world_path
@@ -167,7 +167,12 @@ def train(
         agent.target.load_state_dict(init.model.state_dict())
     kd, kp = cfg.depth_history, cfg.position_history
     n_actions = env.prims.n_actions
-    buffer = ReplayBuffer(cfg.buffer_size, (kd, 32, 32), (kp, 3), seed=cfg.seed + 1, n_actions=n_actions)
+    shapes = (cfg.buffer_size, (kd, 32, 32), (kp, 3))
+    buffer = (
+        PrioritizedReplayBuffer(*shapes, seed=cfg.seed + 1, n_actions=n_actions, alpha=cfg.per_alpha)
+        if cfg.prioritized_replay
+        else ReplayBuffer(*shapes, seed=cfg.seed + 1, n_actions=n_actions)
+    )
     act_rng = np.random.default_rng(cfg.seed + 2)
     nstep = NStepAccumulator(cfg.n_envs, cfg.n_step)
     eps_of = LinearSchedule(cfg.eps_start, cfg.eps_end, cfg.episodes, cfg.schedule_fraction)
@@ -240,7 +245,13 @@ def train(
         if len(buffer) >= cfg.learning_starts:
             update_credit += cfg.updates_per_step
             while update_credit >= 1.0:
-                losses.append(agent.update(buffer.sample(cfg.batch_size), gamma))
+                if isinstance(buffer, PrioritizedReplayBuffer):
+                    beta = cfg.per_beta_start + (1.0 - cfg.per_beta_start) * finished / cfg.episodes
+                    batch = buffer.sample(cfg.batch_size, beta)
+                    losses.append(agent.update(batch, gamma))
+                    buffer.update_priorities(batch.index, agent.last_td_abs)
+                else:
+                    losses.append(agent.update(buffer.sample(cfg.batch_size), gamma))
                 update_credit -= 1.0
         for i in np.flatnonzero(ended):
             if finished >= cfg.episodes:
