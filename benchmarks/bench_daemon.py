@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import json
 import math
 import os
@@ -133,6 +134,7 @@ async def fly(
     cut: str | None,
     record: Path | None = None,
     writer: str | None = None,
+    full_gc: bool = False,
 ) -> tuple[Any, float, float | None]:
     """Fly one benchmark flight; returns its summary, the daemon's CPU and the record writer
     process's CPU (fractions of one core; the latter None without a writer process)."""
@@ -160,6 +162,13 @@ async def fly(
         (depth if cut == "depth" else mocap).cut = True
 
     task = asyncio.ensure_future(cutter()) if cut else None
+
+    async def full_collection() -> None:  # as the interpreter would run one, on the loop's thread
+        while not (daemon.in_mission and daemon.steps >= 40):
+            await asyncio.sleep(0.01)
+        gc.collect()
+
+    collector = asyncio.ensure_future(full_collection()) if full_gc else None
     writer_pid = recorder.writer_pid if recorder is not None else None
     writer_cpu: list[tuple[float, float]] = []
 
@@ -178,8 +187,9 @@ async def fly(
     summary = await daemon.run()
     cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
     sampler.cancel()
-    if task:
-        task.cancel()
+    for t in (task, collector):
+        if t is not None:
+            t.cancel()
     writer_frac = None
     if len(writer_cpu) >= 2:
         (t0, c0), (t1, c1) = writer_cpu[0], writer_cpu[-1]
@@ -206,6 +216,33 @@ def serve(world: Path, port: int) -> subprocess.Popen[bytes]:
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
+class GcPauses:
+    """Times every garbage collection of this process (``gc.callbacks``): a full collection over
+    the objects torch, numpy and MAVSDK leave on the heap is a candidate for a decision's tail."""
+
+    def __init__(self) -> None:
+        self.pauses: list[tuple[int, float, float]] = []
+        self._t0 = 0.0
+        self._created = time.perf_counter()
+        gc.callbacks.append(self._cb)
+
+    def _cb(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        else:
+            t = time.perf_counter()
+            self.pauses.append((info["generation"], (t - self._t0) * 1e3, self._t0 - self._created))
+
+    def summary(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for gen in (0, 1, 2):
+            ms = [p for g, p, _ in self.pauses if g == gen]
+            out[f"gen{gen}"] = {"count": len(ms), "max_ms": round(max(ms, default=0.0), 3)}
+        out["gen2_at_s_ms"] = [(round(t, 2), round(p, 2)) for g, p, t in self.pauses if g == 2]
+        out["over_1ms"] = sum(p > 1.0 for _, p, _ in self.pauses)
+        return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
@@ -220,7 +257,20 @@ def main() -> None:
         default=None,
         help="where the record is written (default: the daemon's, RecordConfig.writer)",
     )
+    ap.add_argument(
+        "--no-gc-freeze", action="store_true", help="skip the daemon's heap freeze (to measure what it buys)"
+    )
+    ap.add_argument(
+        "--full-gc-mid-flight",
+        action="store_true",
+        help="run one full garbage collection at step 40 of the main flight, on the daemon's thread, "
+        "as the interpreter may at any time (its pause is in gc_pauses_main_run)",
+    )
     args = ap.parse_args()
+    if args.no_gc_freeze:
+        import quadnav_onboard.daemon.app as app
+
+        app.freeze_heap = lambda: None
     configure_logging(json=True, level="error")
     import torch
 
@@ -241,6 +291,8 @@ def main() -> None:
         "model": str(model),
         "loadavg_at_start": [round(x, 2) for x in os.getloadavg()],
         "recording": args.record,
+        "gc_freeze": not args.no_gc_freeze,
+        "full_gc_mid_flight": args.full_gc_mid_flight,
         "record_writer": (args.record_writer or FlightConfig().record.writer) if args.record else None,
     }
     stale: dict[str, list[float]] = {"depth": [], "odometry": []}
@@ -251,7 +303,14 @@ def main() -> None:
         record = tmp / f"flight-{i}-{name}.mcap" if args.record else None
         try:
             steps = 80 if cut is None else 30
-            summary, cpu, writer_cpu = asyncio.run(fly(port, policy, steps, cut, record, args.record_writer))
+            gc_pauses = GcPauses() if cut is None else None
+            full_gc = args.full_gc_mid_flight and cut is None
+            summary, cpu, writer_cpu = asyncio.run(
+                fly(port, policy, steps, cut, record, args.record_writer, full_gc)
+            )
+            if gc_pauses is not None:
+                gc.callbacks.remove(gc_pauses._cb)
+                results["gc_pauses_main_run"] = gc_pauses.summary()
         finally:
             emu.terminate()
             emu.wait(10)
@@ -302,8 +361,10 @@ def main() -> None:
         f"DQN work at the step p50 {dqn['p50_ms']} / p99 {dqn['p99_ms']} ms"
     )
     print("decisions: {prepared} prepared on arrival, {waited} waited, {full} full".format(**paths))
+    print(f"setpoint interval max {main_run['setpoint_interval_ms']['max_ms']} ms")
     print(f"frame age at the step (sensor latency): p50 {age['p50_ms']} / p99 {age['p99_ms']} ms")
     print(f"load average at start {results['loadavg_at_start']}, at end {results['loadavg_at_end']}")
+    print(f"garbage collections during the main flight: {results['gc_pauses_main_run']}")
     if args.record:
         print(f"recording on: main flight's record {results['main_run']['record_bytes'] / 1e6:.1f} MB")
     args.out.write_text(json.dumps(results, indent=2, default=str))

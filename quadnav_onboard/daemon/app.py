@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import math
 import signal
 import time
@@ -145,6 +146,7 @@ class FlightDaemon(StopLadder):
             for sig in installed:
                 loop.remove_signal_handler(sig)
             self._executor.shutdown(wait=False, cancel_futures=True)
+            gc.unfreeze()  # a process that goes on (tests, the benchmark) collects as before
         return self._finish()
 
     def _install_signals(self, loop: asyncio.AbstractEventLoop) -> list[int]:
@@ -188,6 +190,7 @@ class FlightDaemon(StopLadder):
             await self._until_stopped(self._preflight())
             if self.stop_reason is not None:
                 return
+            freeze_heap()
             self.notifier.ready()
             self.notifier.status("preflight passed; waiting for go")
             await self._until_stopped(self._wait_for_go())
@@ -461,6 +464,20 @@ class FlightDaemon(StopLadder):
             )
             k += 1
             self.pending_step = pending
+
+
+def freeze_heap() -> None:
+    """Collect once, then move every object alive now (the model, torch, numpy, MAVSDK, the
+    sources) into the collector's permanent generation (:func:`gc.freeze`).
+
+    A full collection walks every object of the heap: in this process that took 90-144 ms
+    (``benchmarks/bench_daemon.py``, gc pauses of the main flight), long enough to delay a
+    decision or a setpoint by several periods. After the freeze a full collection walks only what
+    the flight itself allocated. Run once, after preflight and before READY, when the long-lived
+    objects exist and nothing flies yet."""
+    gc.collect()
+    gc.freeze()
+    log.info("heap_frozen", objects=gc.get_freeze_count())
 
 
 def _shield_log(decision: Any) -> dict[str, Any]:
