@@ -27,7 +27,7 @@ class AgentConfig:
     """Learner settings."""
 
     learning_rate: float = 1e-3
-    """Adam step size (the paper: PyTorch's default, 1e-3)."""
+    """Adam step size (PyTorch's default, 1e-3; the paper states none)."""
     double_dqn: bool = False
     """Double DQN targets: the online net picks a', the target net evaluates it."""
     target_update_interval: int = 250

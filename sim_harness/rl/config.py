@@ -76,7 +76,7 @@ class TrainConfig:
     schedule_fraction: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.8
     """Fraction of the episodes over which ε and γ ramp linearly; flat afterwards."""
     learning_rate: Annotated[float, pydantic.Field(gt=0)] = 1e-3
-    """Adam step size (PyTorch's default, as in the paper)."""
+    """Adam step size (PyTorch's default; the paper states none, and 1e-4 learns more: docs/results.md)."""
     lr_end: Annotated[float, pydantic.Field(gt=0)] | None = None
     """Step size at the last episode (beyond the paper): from the end of the ε/γ ramp on, it falls
     linearly from ``learning_rate`` to this; None = constant (the paper)."""
