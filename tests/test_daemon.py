@@ -49,13 +49,15 @@ def forward_policy(tmp_path_factory: pytest.TempPathFactory) -> Policy:
 
 
 class Rig:
-    def __init__(self, policy: Policy, cfg: FlightConfig | None = None, **kw: object) -> None:
+    def __init__(
+        self, policy: Policy, cfg: FlightConfig | None = None, path: RoughPath = PATH, **kw: object
+    ) -> None:
         self.vehicle = FakeVehicle()
         self.depth = FakeDepthSource(fps=30.0)
         self.odom = FakeOdometrySource(lambda: self.vehicle.pos_world_m, rate_hz=100.0)
         self.daemon = FlightDaemon(
             cfg or fast_config(),
-            path=PATH,
+            path=path,
             policy=policy,
             depth=self.depth,
             odometry=self.odom,
@@ -190,6 +192,17 @@ async def test_first_signal_holds_and_lands_second_forces_exit_after_hold(forwar
     s2 = await rig2.in_mission_then(twice)
     assert s2.stop_reason == "operator_stop"
     assert "hold" in rig2.commands() and "land" not in rig2.commands()
+
+
+async def test_a_setpoint_speed_that_does_not_match_the_primitives_is_refused_before_arming(
+    forward_policy: Policy,
+) -> None:
+    """0.25 m primitives every 0.25 s fly at 1 m/s; a 0.5 m/s moving setpoint is not what was trained."""
+    rig = Rig(forward_policy, path=RoughPath(PATH.waypoints_m, 0.5))
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "preflight_failed" and s.exit_code == 2
+    assert "mission.speed_m_s 0.5" in s.detail and "1 m/s" in s.detail
+    assert rig.commands() == []
 
 
 async def test_a_model_of_the_wrong_shape_is_refused_before_arming(tmp_path: Path) -> None:

@@ -269,6 +269,17 @@ class FlightDaemon(StopLadder):
                 False,
                 f"model has {pol.n_actions} outputs, the action set has {self.prims.n_actions}",
             )
+        prim_speed = self.prims.scale_m / self.prims.duration_s
+        if not math.isclose(self.path.speed_m_s, prim_speed, rel_tol=0.05):
+            # trained (and evaluated at any scale) with the moving setpoint one primitive ahead per
+            # step: another ratio feeds the network relative positions it never saw
+            return PreflightCheck(
+                "model",
+                False,
+                f"mission.speed_m_s {self.path.speed_m_s:g} does not match the primitives "
+                f"({self.prims.scale_m:g} m per {self.prims.duration_s:g} s = {prim_speed:g} m/s): "
+                "the model was trained with the moving setpoint advancing one primitive per step",
+            )
         try:
             q = self._test_decision()
         except Exception as exc:
