@@ -74,10 +74,6 @@ class ShieldConfig:
     """Points sampled along each primitive (its start excluded)."""
     lookahead_s: float = 0.3
     """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot)."""
-    memory_evict: str = "oldest"
-    """Which remembered view a new one replaces when the memory is full: ``"oldest"``, or
-    ``"farthest"``, the view taken farthest from where the vehicle is now (the same as the oldest
-    while it flies on; while it slides or climbs in place, the views of the nearby space stay)."""
     min_travel_m: float = 0.3
     """A decision taken less than this far (m) from the last remembered one replaces it instead of
     pushing the oldest out: hovering in place does not forget what was seen on the way."""
@@ -134,8 +130,6 @@ class ShieldConfig:
             raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
         if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
             raise ValueError("fields of view must be in (0, 180) deg")
-        if self.memory_evict not in ("oldest", "farthest"):
-            raise ValueError(f"memory_evict must be 'oldest' or 'farthest', got {self.memory_evict!r}")
         if self.depth_pooling not in ("min", "mean"):
             raise ValueError(f"depth_pooling must be 'min' or 'mean', got {self.depth_pooling!r}")
         if not (0 <= self.shadow_m < self.search_radius_m):
@@ -246,21 +240,9 @@ class PointMemory:
         k = points_per_view(self.cfg)
         moved = ~(np.linalg.norm(pos - self.pose[ids, -1, :3], axis=-1) < self.cfg.min_travel_m)  # NaN: moved
         mem, dep, pose = self.points[ids], self.depth_m[ids], self.pose[ids]
-        if self.cfg.memory_evict == "farthest":  # drop the farthest view (empty slots first), keep order
-            dist = np.linalg.norm(pose[:, :, :3] - pos[:, None, :], axis=-1)
-            drop = np.argmax(np.where(np.isnan(dist), np.inf, dist), axis=1)  # (M,)
-            steps = self.cfg.memory_steps
-            order = np.arange(steps)[None, :] + (np.arange(steps)[None, :] >= drop[:, None])
-            order = np.minimum(order, steps - 1)  # later views move down; the last slot is overwritten
-            order[~moved] = np.arange(steps)
-            m = len(ids)
-            dep[:] = dep[np.arange(m)[:, None], order]
-            pose[:] = pose[np.arange(m)[:, None], order]
-            mem[:] = mem.reshape(m, steps, k, 3)[np.arange(m)[:, None], order].reshape(m, steps * k, 3)
-        else:
-            mem[moved, :-k] = mem[moved, k:]
-            dep[moved, :-1] = dep[moved, 1:]
-            pose[moved, :-1] = pose[moved, 1:]
+        mem[moved, :-k] = mem[moved, k:]
+        dep[moved, :-1] = dep[moved, 1:]
+        pose[moved, :-1] = pose[moved, 1:]
         mem[:, -k:] = pts_w
         dep[:, -1] = depth * np.float32(self.cfg.max_range_m)
         pose[:, -1, :3] = pos

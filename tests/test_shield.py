@@ -267,24 +267,3 @@ def test_a_known_floor_vetoes_descents_onto_it_that_the_camera_cannot_see():
     for floor, cfg in (([np.nan], ON), (None, ON), ([0.0], ShieldConfig(enabled=True, known_floor=False))):
         unknown, _ = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, cfg, floor_z_m=floor)
         assert unknown.all()
-
-
-def test_memory_evict_farthest_keeps_the_views_of_the_nearby_space() -> None:
-    """Flying on, the farthest view is the oldest; turning back, the views near the vehicle
-    stay and the far one is dropped. Each view's points move with its pose."""
-    cfg = ShieldConfig(enabled=True, memory_steps=3, memory_evict="farthest", shadow_m=0.0)
-    mem = PointMemory(2, cfg)
-    depth = np.full((2, 32, 32), 0.5, np.float32)  # a wall 5 m ahead of every view
-    for x in (0.0, 1.0, 2.0):
-        mem.add([0, 1], depth, np.array([[x, 0, 0], [x, 0, 0]], float), np.zeros(2))
-    mem.add([0, 1], depth, np.array([[3.0, 0, 0], [0.2, 0.5, 0]], float), np.zeros(2))
-    assert mem.pose[0, :, 0].tolist() == [1.0, 2.0, 3.0]  # on: the oldest (x = 0) went
-    assert mem.pose[1, :, :2].tolist() == [[0.0, 0.0], [1.0, 0.0], [0.2, 0.5]]  # went back: x = 2 went
-    first_x = np.nanmin(mem.points.reshape(2, 3, -1, 3)[..., 0], axis=2)
-    np.testing.assert_allclose(first_x, mem.pose[:, :, 0] + 5.0, atol=1e-4)
-    oldest = PointMemory(1, ShieldConfig(enabled=True, memory_steps=3, shadow_m=0.0))
-    for x, y in ((0.0, 0), (1.0, 0), (2.0, 0), (0.2, 0.5)):
-        oldest.add([0], depth[:1], np.array([[x, y, 0]], float), np.zeros(1))
-    assert oldest.pose[0, :, 0].tolist() == [1.0, 2.0, 0.2]
-    with pytest.raises(ValueError, match="memory_evict"):
-        ShieldConfig(memory_evict="random")
