@@ -233,6 +233,9 @@ class GcPauses:
             t = time.perf_counter()
             self.pauses.append((info["generation"], (t - self._t0) * 1e3, self._t0 - self._created))
 
+    def close(self) -> None:
+        gc.callbacks.remove(self._cb)
+
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for gen in (0, 1, 2):
@@ -309,7 +312,7 @@ def main() -> None:
                 fly(port, policy, steps, cut, record, args.record_writer, full_gc)
             )
             if gc_pauses is not None:
-                gc.callbacks.remove(gc_pauses._cb)
+                gc_pauses.close()
                 results["gc_pauses_main_run"] = gc_pauses.summary()
         finally:
             emu.terminate()

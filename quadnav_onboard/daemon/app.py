@@ -481,7 +481,7 @@ def freeze_heap() -> None:
     """Collect once, then move every object alive now (the model, torch, numpy, MAVSDK, the
     sources) into the collector's permanent generation (:func:`gc.freeze`).
 
-    A full collection walks every object of the heap: in this process that took 90-144 ms
+    A full collection walks every object of the heap: in this process that took 89-208 ms
     (``benchmarks/bench_daemon.py``, gc pauses of the main flight), long enough to delay a
     decision or a setpoint by several periods. After the freeze a full collection walks only what
     the flight itself allocated. Run once, after preflight and before READY, when the long-lived

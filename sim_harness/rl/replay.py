@@ -9,8 +9,9 @@ uses the buffer's own seeded numpy Generator. Memory is bounded by ``capacity``.
 :class:`PrioritizedReplayBuffer` (beyond the paper) samples in proportion to each transition's last
 TD error (Schaul et al. 2016, "Prioritized Experience Replay", proportional variant) and returns
 the importance-sampling weights that correct the bias. Sampling draws from the cumulative sum of
-the priorities, O(capacity) per minibatch: for the 200k-transition buffers used here that is a
-fraction of a millisecond against a gradient step's ~10 ms, so no sum tree is needed.
+the priorities, O(capacity) per minibatch: for the 200k-transition buffers used here ~0.6 ms
+(measured on the 2-core VM), against ~6 ms to gather a 256-transition minibatch and more for the
+gradient step, so no sum tree is needed.
 """
 
 from __future__ import annotations
