@@ -141,7 +141,8 @@ def test_prioritized_replay_samples_in_proportion_to_priority() -> None:
     buf = PrioritizedReplayBuffer(10, (1, 32, 32), (1, 3), seed=0, alpha=1.0, eps=1e-9)
     idx = buf.add(**_transitions(2))
     buf.update_priorities(idx, np.array([1.0, 3.0]))
-    batch = buf.sample(40_000, beta=1.0)
+    buf.beta = 1.0
+    batch = buf.sample(40_000)
     share = (batch.rel[:, 0, 0] == 1).mean()
     assert abs(share - 0.75) < 0.01
     w = {int(i): float(wi) for i, wi in zip(batch.rel[:, 0, 0], batch.weight, strict=True)}

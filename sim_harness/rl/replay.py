@@ -123,6 +123,9 @@ class ReplayBuffer:
             raise ValueError("cannot sample from an empty replay buffer")
         return self._batch(self.rng.integers(0, self._size, size=batch_size))
 
+    def update_priorities(self, index: NDArray[np.int64], td_abs: NDArray) -> None:
+        """Uniform replay keeps no priorities (:class:`PrioritizedReplayBuffer` does)."""
+
     def _batch(self, idx: NDArray[np.int64]) -> Batch:
         return Batch(
             depth=self.depth[idx].astype(np.float32),
@@ -226,15 +229,18 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         self.priority = np.zeros(capacity, dtype=np.float64)
         """p_i^α of every slot (0 for empty slots: never sampled)."""
         self._max_priority = 1.0
+        self.beta = 0.4
+        """Importance-sampling exponent of the next samples (1 corrects the sampling bias fully);
+        the trainer anneals it (``TrainConfig.per_beta_start`` -> 1)."""
 
     def add(self, *args, **kwargs) -> NDArray[np.int64]:  # type: ignore[no-untyped-def]
         idx = super().add(*args, **kwargs)
         self.priority[idx] = self._max_priority**self.alpha
         return idx
 
-    def sample(self, batch_size: int, beta: float = 0.4) -> Batch:  # type: ignore[override]
-        """A minibatch drawn in proportion to priority, with weights (N P(i))^-β / max_j (N P(j))^-β
-        (β = 1 corrects the sampling bias fully)."""
+    def sample(self, batch_size: int) -> Batch:
+        """A minibatch drawn in proportion to priority, with weights (N P(i))^-β / max_j (N P(j))^-β,
+        β = :attr:`beta`."""
         if self._size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
         cum = np.cumsum(self.priority[: self._size])
@@ -242,7 +248,7 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         idx = np.searchsorted(cum, self.rng.random(batch_size) * total, side="right")
         idx = np.minimum(idx, self._size - 1)
         prob = self.priority[idx] / total
-        weight = (self._size * prob) ** (-float(beta))
+        weight = (self._size * prob) ** (-self.beta)
         batch = self._batch(idx)
         batch.weight = (weight / weight.max()).astype(np.float32)
         return batch

@@ -177,6 +177,7 @@ def train(
     nstep = NStepAccumulator(cfg.n_envs, cfg.n_step)
     eps_of = LinearSchedule(cfg.eps_start, cfg.eps_end, cfg.episodes, cfg.schedule_fraction)
     gamma_of = LinearSchedule(cfg.gamma_start, cfg.gamma_end, cfg.episodes, cfg.schedule_fraction)
+    beta_of = LinearSchedule(cfg.per_beta_start, 1.0, cfg.episodes, 1.0)  # prioritised replay's β
 
     rows: list[dict[str, Any]] = []
     env_steps, wall_before = 0, 0.0
@@ -244,14 +245,12 @@ def train(
         env_steps += cfg.n_envs
         if len(buffer) >= cfg.learning_starts:
             update_credit += cfg.updates_per_step
+            if isinstance(buffer, PrioritizedReplayBuffer):
+                buffer.beta = beta_of(finished)
             while update_credit >= 1.0:
-                if isinstance(buffer, PrioritizedReplayBuffer):
-                    beta = cfg.per_beta_start + (1.0 - cfg.per_beta_start) * finished / cfg.episodes
-                    batch = buffer.sample(cfg.batch_size, beta)
-                    losses.append(agent.update(batch, gamma))
-                    buffer.update_priorities(batch.index, agent.last_td_abs)
-                else:
-                    losses.append(agent.update(buffer.sample(cfg.batch_size), gamma))
+                batch = buffer.sample(cfg.batch_size)
+                losses.append(agent.update(batch, gamma))
+                buffer.update_priorities(batch.index, agent.last_td_abs)
                 update_credit -= 1.0
         for i in np.flatnonzero(ended):
             if finished >= cfg.episodes:
