@@ -134,11 +134,12 @@ def test_the_shield_sees_a_thin_pole_that_the_network_input_blurs(policy: Policy
     for pooling in ("min", "mean"):
         d = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True, depth_pooling=pooling))
         prepared = d.prepare(frame, d.snapshot())
-        assert (prepared.shield_view is None) == (pooling == "mean")
+        assert (prepared.nearest_view is None) == (pooling == "mean")
         verdicts[pooling] = d.decide(prepared, np.zeros(3), "full", _still())
     decider = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True))
     near = decider.prepare(frame, decider.snapshot())
-    assert near.shield_view is not None and near.shield_view.min() == pytest.approx(0.1, abs=1e-6)
+    assert near.nearest_view is not None and near.shield_view is near.nearest_view
+    assert near.shield_view.min() == pytest.approx(0.1, abs=1e-6)
     assert near.depth_input.min() > 0.25  # blurred into the background
     assert not verdicts["min"].allowed[fwd] and verdicts["mean"].allowed[fwd]
     assert verdicts["min"].clearance_m[fwd] < 0.5 < verdicts["mean"].clearance_m[fwd]

@@ -21,7 +21,7 @@ replaces ``memory`` with a new one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -69,9 +69,14 @@ class PreparedFrame:
     """The shield's clearance (m) of every primitive, with ``allowed``."""
     memory: PointMemory | None = None
     """The shield's memory with this view added, committed when the frame is decided on."""
-    shield_view: NDArray[np.float32] | None = None
-    """The shield's depth view of this frame (32, 32), when it differs from ``depth_input``
+    nearest_view: NDArray[np.float32] | None = None
+    """The nearest surface per cell of this frame (32, 32), when the shield uses it
     (``depth_pooling: min``, :func:`quadnav_onboard.preprocess.nearest_depth_mm`)."""
+
+    @property
+    def shield_view(self) -> NDArray[np.float32]:
+        """What the shield remembers of this frame: the nearest view, else the network's input."""
+        return self.depth_input if self.nearest_view is None else self.nearest_view
 
 
 @dataclass(frozen=True)
@@ -155,18 +160,16 @@ class Decider:
 
         Raises :class:`quadnav_onboard.preprocess.DepthFrameError` for an unusable frame.
         """
-        view = None
+        nearest = None
         if self.shield.enabled and self.shield.depth_pooling == "min":
-            depth_in, view = preprocess_depth_pair(frame.depth_mm, self.preprocess)
+            depth_in, nearest = preprocess_depth_pair(frame.depth_mm, self.preprocess)
         else:
             depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
         features = self.policy.depth_features(history.depth_with(depth_in))
-        allowed = clearance = after = None
+        prepared = PreparedFrame(frame, depth_in, features, history.version, nearest_view=nearest)
         if memory is not None and motion is not None and self.shield.enabled:
-            allowed, clearance, after = self._verdict(memory, depth_in if view is None else view, motion)
-        prepared = PreparedFrame(
-            frame, depth_in, features, history.version, allowed, clearance, after, shield_view=view
-        )
+            allowed, clearance, after = self._verdict(memory, prepared.shield_view, motion)
+            prepared = replace(prepared, allowed=allowed, clearance_m=clearance, memory=after)
         self.prepared = prepared
         return prepared
 
@@ -195,8 +198,7 @@ class Decider:
             elif motion is None:
                 raise ValueError("the shield is on: decide() needs the vehicle's motion")
             else:
-                view = prepared.depth_input if prepared.shield_view is None else prepared.shield_view
-                allowed, clearance, self.memory = self._verdict(self.memory, view, motion)
+                allowed, clearance, self.memory = self._verdict(self.memory, prepared.shield_view, motion)
         self.history.push(prepared.depth_input, rel_pos_body_m)
         action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed)
         return Decision(action, q, prepared.depth_input, path, allowed, clearance)
