@@ -198,3 +198,26 @@ def test_training_at_half_scale_records_it_and_eval_flies_it_there(tmp_path) -> 
     assert main([*argv, "--json", str(out), "--no-progress"]) == 0
     data = json.loads(out.read_text())
     assert data["primitive_scale_m"] == 0.5 and data["max_steps"] == 240
+
+
+def test_episode_outcomes_script_summarises_a_real_run(tmp_path) -> None:
+    """scripts/episode_outcomes.py (the figures of docs/results.md on what ε-greedy training sees)
+    reads a run's metrics: per world, the episodes in the range and their outcome shares."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    result = train(_tiny(tmp_path, episodes=8), progress=False)
+    out = tmp_path / "o.json"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "episode_outcomes.py"
+    subprocess.run([sys.executable, str(script), str(result.run_dir), "--from", "2", "--json", str(out)],
+                   check=True, capture_output=True)
+    table = json.loads(out.read_text())
+    rows = [r for r in json.loads((result.run_dir / "metrics.json").read_text()) if r["episode"] >= 2]
+    assert sum(t["episodes"] for t in table.values()) == len(rows) == 6
+    for world, t in table.items():
+        mine = [r for r in rows if r["world"] == world]
+        assert t["crash_share"] == round(sum(r["outcome"] == "crash" for r in mine) / len(mine), 3)
+        assert t["mean_progress_m"] == round(sum(r["progress_m"] for r in mine) / len(mine), 2)
+    empty = subprocess.run([sys.executable, str(script), str(tmp_path)], capture_output=True, text=True)
+    assert empty.returncode == 2 and "no metrics.json" in empty.stderr
