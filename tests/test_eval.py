@@ -151,3 +151,28 @@ def test_a_scale_that_is_not_positive_is_refused_before_any_flight(command: str,
         main([command, "--primitive-scale", "0", "--no-progress"])
     assert exc.value.code == 2
     assert "--primitive-scale: must be > 0, got 0" in capsys.readouterr().err
+
+
+def test_trace_flight_script_replays_the_flight_eval_flew() -> None:
+    """scripts/trace_flight.py flies trial T of world I as eval does (same seed, filter and scale):
+    its outcome is eval's for that trial, and it prints one line per step."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.world import load_world, paper_world_path
+
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    world = paper_world_path(5)
+    rows = evaluate(policy_greedy_fn(policy), [load_world(world)], trials=2, seed=3,
+                    env_config=env_config_for_policy(policy, max_steps=25))
+    script = Path(__file__).resolve().parents[1] / "scripts" / "trace_flight.py"
+    out = subprocess.run(
+        [sys.executable, str(script), "--world", str(world), "--trial", "1", "--trials", "2", "--seed", "3",
+         "--max-steps", "25"],
+        check=True, capture_output=True, text=True,
+    ).stdout.splitlines()
+    assert out[-1] == f"outcome: {rows[1].outcome}"
+    assert sum(line[:3].strip().isdigit() for line in out) == round(rows[1].time_s / 1.0)
