@@ -7,7 +7,8 @@ that frame seen from points 0.25 m apart along the path, as in a flight.
 
     .venv/bin/python benchmarks/bench_shield.py [--scale 0.5] [--calls 300] [--json OUT]
 
-Prints median and p99 (ms) per variant: the first filter (area-averaged view, no shadows, no
+Prints median and p99 (ms) per variant, and the median of the filter's verdict alone
+(``shield_verdict`` on the full memory): the first filter (area-averaged view, no shadows, no
 floor), the shipped one, and the shipped one at the memory its scale implies.
 """
 
@@ -26,10 +27,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_daemon import CameraFeed
 
-from quadnav_onboard.daemon.decide import Decider, Motion
+from quadnav_onboard.daemon.decide import FLOOR_Z_M, Decider, Motion
 from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
 from quadnav_onboard.primitives import PrimitiveSet
-from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
+from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta, shield_verdict
 from quadnav_onboard.sources.base import DepthFrame
 
 
@@ -52,11 +53,25 @@ def time_prepare(policy: Policy, shield: ShieldConfig, scale_m: float, calls: in
         decider.prepare(frame, decider.snapshot(), motion, memory)
         ts.append(time.perf_counter() - t0)
     ms = np.array(ts[20:]) * 1e3
-    return {
+    out = {
         "memory_steps": decider.shield.memory_steps,
         "median_ms": round(float(np.median(ms)), 3),
         "p99_ms": round(float(np.percentile(ms, 99)), 3),
     }
+    if shield.enabled:  # the verdict alone (shield_verdict on the full memory), as part of prepare
+        m = motion
+        mem = decider.prepare(frame, decider.snapshot(), motion, memory).memory
+        ts = []
+        for _ in range(calls + 20):
+            t0 = time.perf_counter()
+            shield_verdict(prims, mem.points, mem.depth_m, mem.pose, m.start_world_m[None],
+                           m.start_vel_world_m_s[None], np.full(1, m.yaw_rad), m.pos_world_m[None],
+                           m.vel_world_m_s[None], decider.shield, floor_z_m=FLOOR_Z_M)
+            ts.append(time.perf_counter() - t0)
+        ms = np.array(ts[20:]) * 1e3
+        out["verdict_median_ms"] = round(float(np.median(ms)), 3)
+        out["verdict_p99_ms"] = round(float(np.percentile(ms, 99)), 3)
+    return out
 
 
 def main() -> None:
@@ -81,8 +96,9 @@ def main() -> None:
     for name, cfg in variants.items():
         r = time_prepare(policy, cfg, args.scale, args.calls)
         out["prepare"][name] = r
+        verdict = f"  verdict median {r['verdict_median_ms']:.3f} ms" if "verdict_median_ms" in r else ""
         print(f"{name:40s} memory {r['memory_steps']:3d}  prepare median {r['median_ms']:.3f} ms  "
-              f"p99 {r['p99_ms']:.3f} ms")
+              f"p99 {r['p99_ms']:.3f} ms{verdict}")
     if args.json:
         args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")
