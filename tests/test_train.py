@@ -221,3 +221,20 @@ def test_episode_outcomes_script_summarises_a_real_run(tmp_path) -> None:
         assert t["mean_progress_m"] == round(sum(r["progress_m"] for r in mine) / len(mine), 2)
     empty = subprocess.run([sys.executable, str(script), str(tmp_path)], capture_output=True, text=True)
     assert empty.returncode == 2 and "no metrics.json" in empty.stderr
+
+
+def test_reward_floor_reaches_the_training_env_and_the_checkpoint(tmp_path) -> None:
+    """``--reward-d-floor-m``: the env trained in divides the shaping reward by at least that distance
+    (one step then earns at most R_u / floor), and the checkpoint records it."""
+    from sim_harness.env import VecQuadNavEnv
+    from sim_harness.rl.train import env_config_for
+
+    cfg = _tiny(tmp_path, reward_d_floor_m=1.0)
+    env_cfg = env_config_for(cfg)
+    assert env_cfg.reward.d_floor_m == 1.0 and env_config_for(_tiny(tmp_path)).reward.d_floor_m == 0.25
+    env = VecQuadNavEnv([load_world(paper_world_path(1))], n_envs=8, seed=0, config=env_cfg)
+    env.reset()
+    rewards = np.concatenate([env.step(np.full(8, 4))[2] for _ in range(10)])  # straight ahead
+    assert rewards.max() <= env_cfg.reward.r_upper / 1.0 + 1e-9 and rewards.max() > 0
+    ckpt = load_checkpoint(train(cfg, progress=False).model_path)
+    assert ckpt.meta["env"]["reward"]["d_floor_m"] == 1.0

@@ -63,6 +63,10 @@ class TrainConfig:
     proportion; the checkpoint records the scale, and eval flies it at that scale by default."""
     start_jitter_m: Annotated[float, pydantic.Field(ge=0)] = 0.5
     """Half-width (m) of the random start offset per axis."""
+    reward_d_floor_m: Annotated[float, pydantic.Field(gt=0)] = 0.25
+    """Floor (m) on the setpoint distance d_t that divides the paper's shaping reward (the paper
+    leaves d_t -> 0 undefined; 0.25 m caps a step's reward at 2). Evaluation always reports the
+    reward with the default floor."""
     random_start_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
     """Share of training episodes started at a random free point along the path (0 = the paper)."""
     eps_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 1.0

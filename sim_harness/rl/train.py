@@ -25,6 +25,7 @@ from tqdm import tqdm
 from quadnav_onboard.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
 from quadnav_onboard.config import ConfigError
 from quadnav_onboard.network import NetworkConfig
+from quadnav_onboard.reward import RewardParams
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import REFERENCE_SCALE_M, EnvConfig, VecQuadNavEnv, at_primitive_scale
 from sim_harness.procgen import procedural_worlds
@@ -65,6 +66,7 @@ def env_config_for(cfg: TrainConfig) -> EnvConfig:
         random_start_prob=cfg.random_start_prob,
         depth_history=cfg.depth_history,
         position_history=cfg.position_history,
+        reward=RewardParams(d_floor_m=cfg.reward_d_floor_m),
         shield=ShieldConfig(
             enabled=cfg.shield,
             clearance_m=cfg.shield_clearance_m,
