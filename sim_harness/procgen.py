@@ -12,6 +12,7 @@ the development set of ``quadnav-sim select`` (777) and the test set of ``docs/r
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -125,7 +126,10 @@ def random_world(rng: np.random.Generator, family: str, name: str = "procgen") -
     return parse_world(mapping, source=f"<procgen {family}>")
 
 
-def procedural_worlds(n: int, seed: int) -> list[World]:
-    """``n`` random worlds cycling through the families, reproducible from ``seed``."""
+def procedural_worlds(n: int, seed: int, families: Sequence[str] = FAMILIES) -> list[World]:
+    """``n`` random worlds cycling through ``families`` (a family named twice comes up twice as
+    often), reproducible from ``seed``."""
+    if not families:
+        raise ValueError("procedural_worlds needs at least one family")
     rng = np.random.default_rng(seed)
-    return [random_world(rng, FAMILIES[i % len(FAMILIES)], name=f"procgen{i:03d}") for i in range(n)]
+    return [random_world(rng, families[i % len(families)], name=f"procgen{i:03d}") for i in range(n)]

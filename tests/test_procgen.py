@@ -56,3 +56,11 @@ def test_up_down_slaloms_leave_the_minimum_gap_below_or_above_each_obstacle():
 def test_unknown_family_is_an_error():
     with pytest.raises(ValueError, match="unknown world family"):
         random_world(np.random.default_rng(0), "maze")
+
+
+def test_families_can_be_weighted_by_naming_them_again():
+    worlds = procedural_worlds(8, seed=5, families=("corridor", "slalom_ud", "slalom_ud"))
+    kinds = [w.name.split("-", 1)[1] for w in worlds]
+    assert kinds == ["corridor", "slalom_ud", "slalom_ud"] * 2 + ["corridor", "slalom_ud"]
+    with pytest.raises(ValueError, match="unknown world family 'forest'"):
+        procedural_worlds(2, seed=5, families=("corridor", "forest"))

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from quadnav_onboard.checkpoint import load_checkpoint
-from quadnav_onboard.config import PrimitiveConfig, parse_config
+from quadnav_onboard.config import ConfigError, PrimitiveConfig, parse_config
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import PreprocessConfig
 from sim_harness.rl.config import TrainConfig
@@ -238,3 +238,13 @@ def test_reward_floor_reaches_the_training_env_and_the_checkpoint(tmp_path) -> N
     assert rewards.max() <= env_cfg.reward.r_upper / 1.0 + 1e-9 and rewards.max() > 0
     ckpt = load_checkpoint(train(cfg, progress=False).model_path)
     assert ckpt.meta["env"]["reward"]["d_floor_m"] == 1.0
+
+
+def test_procedural_families_flag_is_validated_and_names_the_key() -> None:
+    from sim_harness.cli import build_parser
+    from sim_harness.rl.config import config_from_args
+
+    args = build_parser().parse_args(["train", "--procedural-families", "slalom_ud", "clutter", "slalom_ud"])
+    assert config_from_args(args).procedural_families == ("slalom_ud", "clutter", "slalom_ud")
+    with pytest.raises(ConfigError, match=r"procedural_families.*'forest'"):
+        config_from_args(build_parser().parse_args(["train", "--procedural-families", "forest"]))

@@ -21,6 +21,7 @@ from typing import Annotated, Any
 import pydantic
 
 from quadnav_onboard.config import ConfigError, parse_config
+from sim_harness.procgen import FAMILIES
 
 __all__ = [
     "TrainConfig",
@@ -53,6 +54,9 @@ class TrainConfig:
     (sim_harness.procgen; 0 = the paper), drawn from ``procedural_seed``."""
     procedural_seed: int = 20261124
     """Seed of the procedural world generator (fixed: the training set is part of the recipe)."""
+    procedural_families: tuple[str, ...] = FAMILIES
+    """Families the generated training worlds cycle through, in order (sim_harness.procgen.FAMILIES;
+    one named twice is drawn twice as often)."""
     n_envs: Annotated[int, pydantic.Field(ge=1)] = 16
     """Environments stepped together (vectorised numpy)."""
     max_steps: Annotated[int, pydantic.Field(ge=1)] = 120
@@ -151,6 +155,12 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
     bad = [w for w in cfg.train_worlds if w not in range(1, 11)]
     if bad:
         raise ConfigError(f"{source}: key 'train_worlds': bad value {bad!r}: paper worlds are 1..10")
+    unknown = [f for f in cfg.procedural_families if f not in FAMILIES]
+    if unknown or not cfg.procedural_families:
+        raise ConfigError(
+            f"{source}: key 'procedural_families': bad value {list(cfg.procedural_families)!r}: "
+            f"families are {', '.join(FAMILIES)}"
+        )
     if cfg.device != "cpu":
         import torch
 

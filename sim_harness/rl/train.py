@@ -151,7 +151,7 @@ def train(
     env_cfg = env_config_for(cfg)
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
     worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
-    worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed)
+    worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed, cfg.procedural_families)
     if cfg.primitive_scale_m != REFERENCE_SCALE_M:
         env_cfg, worlds = at_primitive_scale(env_cfg, worlds, cfg.primitive_scale_m)
     init = _init_checkpoint(cfg) if resume is None else None  # fails before a run directory exists
