@@ -50,6 +50,13 @@ def _positive(text: str) -> float:
     return value
 
 
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
 def add_flight_flags(p: argparse.ArgumentParser, shield_default: str) -> None:
     """How the flights are flown, shared by ``eval`` and ``select``: the filter and the scale."""
     p.add_argument(
@@ -110,6 +117,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=int, default=5, help="trials per world (default 5, as in the paper)")
     p.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default 0)")
     p.add_argument(
+        "--start-jitter-m",
+        type=_non_negative,
+        default=0.5,
+        metavar="M",
+        help="half-width of the random start offset per axis (default 0.5; 0: every trial starts on "
+        "the path's start, as the dry run does)",
+    )
+    p.add_argument(
         "--max-steps",
         type=int,
         default=None,
@@ -154,7 +169,9 @@ def run(args: argparse.Namespace) -> int:
             worlds = procedural_worlds(args.procedural, args.procedural_seed)
             paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
         shield = shield_from_flags(policy, args)
-        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps or 120, shield=shield)
+        env_cfg = env_config_for_policy(
+            policy, max_steps=args.max_steps or 120, start_jitter_m=args.start_jitter_m, shield=shield
+        )
         env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, args.max_steps)
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
@@ -183,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
             "model_sha256": policy.checkpoint.sha256,
             "trials": args.trials,
             "seed": args.seed,
+            "start_jitter_m": env_cfg.start_jitter_m,
             "max_steps": env_cfg.max_steps,
             "primitive_scale_m": env_cfg.primitives.scale_m,
             "shield": dataclasses.asdict(env_cfg.shield),

@@ -145,6 +145,29 @@ def test_eval_at_the_flight_scale_goes_slower_and_says_so(tmp_path) -> None:
     assert 1.8 * steps["1.0"] <= steps["0.5"] <= 2.2 * steps["1.0"]
 
 
+def test_eval_without_start_jitter_flies_every_trial_alike_and_says_so(tmp_path, capsys) -> None:
+    """``--start-jitter-m 0`` (how the dry run starts): the trials of a world are the same flight;
+    with the default jitter they are not. A negative jitter is refused before any flight."""
+    from quadnav_onboard.daemon.testing import constant_action_checkpoint
+
+    world = tmp_path / "free.yaml"
+    world.write_text("name: free\npath:\n  waypoints: [[0, 0, 2], [8, 0, 2]]\n")
+    model = tmp_path / "straight.pt"
+    constant_action_checkpoint(str(model), FORWARD)
+    argv = ["eval", "--model", str(model), "--world", str(world), "--trials", "3", "--no-progress"]
+    rewards = {}
+    for jitter in ("0", "0.5"):
+        out = tmp_path / f"eval{jitter}.json"
+        assert main([*argv, "--start-jitter-m", jitter, "--json", str(out)]) == 0
+        data = json.loads(out.read_text())
+        assert data["start_jitter_m"] == float(jitter)
+        rewards[jitter] = {r["total_reward"] for r in data["rows"]}
+    assert len(rewards["0"]) == 1 and len(rewards["0.5"]) == 3
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--start-jitter-m", "-0.1"])
+    assert exc.value.code == 2 and "--start-jitter-m: must be >= 0, got -0.1" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("command", ["eval", "select"])
 def test_a_scale_that_is_not_positive_is_refused_before_any_flight(command: str, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
