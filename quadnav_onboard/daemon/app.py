@@ -482,7 +482,8 @@ def freeze_heap() -> None:
     sources) into the collector's permanent generation (:func:`gc.freeze`).
 
     A full collection walks every object of the heap: in this process that took 89-208 ms
-    (``benchmarks/bench_daemon.py``, gc pauses of the main flight), long enough to delay a
+    (``benchmarks/bench_daemon.py --full-gc-mid-flight --no-gc-freeze``, its JSON's
+    ``gc_pauses_main_run``; docs/daemon.md), long enough to delay a
     decision or a setpoint by several periods. After the freeze a full collection walks only what
     the flight itself allocated. Run once, after preflight and before READY, when the long-lived
     objects exist and nothing flies yet."""
