@@ -199,3 +199,46 @@ def test_trace_flight_script_replays_the_flight_eval_flew() -> None:
     ).stdout.splitlines()
     assert out[-1] == f"outcome: {rows[1].outcome}"
     assert sum(line[:3].strip().isdigit() for line in out) == round(rows[1].time_s / 1.0)
+
+
+def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp_path) -> None:
+    """scripts/with_camera_fov.py (the 90-deg experiment of docs/results.md): in its process the
+    env renders through the given field of view, and the quadnav-sim command after ``--`` runs."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from sim_harness.world import paper_world_path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "with_camera_fov.py"
+    probe = (
+        "import sys, numpy as np\n"
+        "import sim_harness.env as E\n"
+        "from quadnav_onboard.preprocess import PreprocessConfig\n"
+        "from sim_harness.world import load_world, paper_world_path\n"
+        "w = load_world(paper_world_path(6))\n"
+        "pos, yaw = np.array([[8.5, 0, 3.4]]), np.array([0.0])\n"
+        "look = lambda: E.render_inputs(w, pos, yaw, PreprocessConfig())[0]\n"
+        "before = look()\n"
+        f"sys.path.insert(0, {str(script.parent)!r})\n"
+        "import with_camera_fov as m\n"
+        "m.patch_camera(90, 90)\n"
+        "print(float(np.abs(look() - before).max()))\n"
+    )
+    changed = subprocess.run([sys.executable, "-c", probe], check=True, capture_output=True, text=True)
+    assert float(changed.stdout.strip()) > 0.1
+
+    out = tmp_path / "e.json"
+    run = subprocess.run(
+        [sys.executable, str(script), "--hfov", "90", "--vfov", "90", "--", "eval", "--world",
+         str(paper_world_path(1)), "--trials", "1", "--max-steps", "3", "--json", str(out), "--no-progress"],
+        capture_output=True, text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "90.0 x 90.0 deg" in run.stderr
+    assert len(json.loads(out.read_text())["rows"]) == 1
+
+    bad = subprocess.run([sys.executable, str(script), "--hfov", "0", "--vfov", "90", "--", "eval"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "--hfov 0" in bad.stderr
+
