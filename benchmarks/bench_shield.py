@@ -10,6 +10,14 @@ that frame seen from points 0.25 m apart along the path, as in a flight.
 Prints median and p99 (ms) per variant, and the median of the filter's verdict alone
 (``shield_verdict`` on the full memory): the first filter (area-averaged view, no shadows, no
 floor), the shipped one, and the shipped one at the memory its scale implies.
+
+    .venv/bin/python benchmarks/bench_shield.py --flights [--scale 0.5] [--trials 1] [--json OUT]
+
+``--flights`` times the verdict where the corridor scene above cannot: in real evaluation flights
+(the shipped model over Env 1-7, eval seed 0, one vehicle per call as in the daemon), every call
+of ``shield_verdict`` the sim makes, with the memory the scale implies (8 decisions at 0.5 m) and
+with the 4 decisions it kept before stop 13. Flights differ between the two (the filter allows
+different moves), so each line also says how many calls and goals it timed.
 """
 
 from __future__ import annotations
@@ -19,7 +27,9 @@ import dataclasses
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -74,17 +84,74 @@ def time_prepare(policy: Policy, shield: ShieldConfig, scale_m: float, calls: in
     return out
 
 
+def time_flights(policy: Policy, shield: ShieldConfig, scale_m: float, trials: int,
+                 memory_steps: int | None = None, envs: Sequence[int] = range(1, 8)) -> dict[str, float]:
+    """Every ``shield_verdict`` call of an evaluation on Env 1-7 (eval seed 0) at ``scale_m``,
+    timed; ``memory_steps`` overrides the memory after scaling (None: what the scale implies)."""
+    import sim_harness.env as sim_env
+    from sim_harness.env import at_primitive_scale
+    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.world import load_world, paper_world_path
+
+    worlds = [load_world(paper_world_path(i)) for i in envs]
+    cfg, worlds = at_primitive_scale(env_config_for_policy(policy, shield=shield), worlds, scale_m)
+    if memory_steps is not None:
+        cfg = dataclasses.replace(cfg, shield=dataclasses.replace(cfg.shield, memory_steps=memory_steps))
+    ts: list[float] = []
+    real = sim_env.shield_verdict
+
+    def timed(*a: Any, **k: Any) -> Any:  # a pass-through
+        t0 = time.perf_counter()
+        out = real(*a, **k)
+        ts.append(time.perf_counter() - t0)
+        return out
+
+    sim_env.shield_verdict = timed
+    try:
+        rows = evaluate(policy_greedy_fn(policy), worlds, trials, 0, cfg)
+    finally:
+        sim_env.shield_verdict = real
+    ms = np.array(ts) * 1e3
+    return {
+        "memory_steps": cfg.shield.memory_steps,
+        "calls": int(ms.size),
+        "goals": sum(r.outcome == "goal" for r in rows),
+        "flights": len(rows),
+        "verdict_median_ms": round(float(np.median(ms)), 3),
+        "verdict_p99_ms": round(float(np.percentile(ms, 99)), 3),
+    }
+
+
+def main_flights(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig) -> None:
+    out = {"scale_m": args.scale, "trials": args.trials, "flights": {}}
+    time_flights(policy, shipped, args.scale, 1, envs=(1,))  # warm-up: compiled kernels, caches
+    for name, steps in (("memory before stop 13 (4 decisions)", 4), ("shipped (memory at scale)", None)):
+        r = time_flights(policy, shipped, args.scale, args.trials, memory_steps=steps)
+        out["flights"][name] = r
+        print(f"{name:38s} memory {r['memory_steps']:3d}  verdict median {r['verdict_median_ms']:.3f} ms  "
+              f"p99 {r['verdict_p99_ms']:.3f} ms  ({r['calls']} calls, {r['goals']}/{r['flights']} goals)")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
+        print(f"wrote {args.json}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scale", type=float, default=0.25, help="primitive scale flown (bench_daemon: 0.25)")
     ap.add_argument("--calls", type=int, default=300)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--flights", action="store_true", help="time the verdict in eval flights on Env 1-7")
+    ap.add_argument("--trials", type=int, default=1,
+                    help="--flights: flights per world (1: one vehicle a call)")
     args = ap.parse_args()
     import torch
 
     torch.set_num_threads(1)
     policy = Policy.from_path(DEFAULT_MODEL_PATH)
     shipped = shield_config_from_meta(policy.checkpoint.meta)
+    if args.flights:
+        main_flights(args, policy, shipped)
+        return
     variants = {
         "first (mean view, no shadow, no floor)": dataclasses.replace(
             shipped, depth_pooling="mean", shadow_m=0.0, known_floor=False
