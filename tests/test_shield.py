@@ -267,3 +267,27 @@ def test_a_known_floor_vetoes_descents_onto_it_that_the_camera_cannot_see():
     for floor, cfg in (([np.nan], ON), (None, ON), ([0.0], ShieldConfig(enabled=True, known_floor=False))):
         unknown, _ = shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, cfg, floor_z_m=floor)
         assert unknown.all()
+
+
+def test_bench_shield_flights_times_every_verdict_of_a_real_flight():
+    """benchmarks/bench_shield.py --flights (the verdict figures of docs/results.md): one timed call
+    per decision of the flight plus one at its start, with the memory asked for."""
+    import sys
+    from pathlib import Path
+
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from quadnav_onboard.shield import shield_config_from_meta
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_shield
+
+    import sim_harness.env as sim_env
+
+    real = sim_env.shield_verdict
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    shipped = shield_config_from_meta(policy.checkpoint.meta)
+    r = bench_shield.time_flights(policy, shipped, 0.5, 1, memory_steps=3, envs=(1,))
+    assert sim_env.shield_verdict is real  # restored
+    assert r["memory_steps"] == 3 and r["flights"] == 1 and r["goals"] in (0, 1)
+    assert r["calls"] >= (100 if r["goals"] else 2)  # 60 m at 0.5 m a step: ~120 decisions to the goal
+    assert 0 < r["verdict_median_ms"] <= r["verdict_p99_ms"]
