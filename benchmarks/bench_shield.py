@@ -18,6 +18,13 @@ floor), the shipped one, and the shipped one at the memory its scale implies.
 of ``shield_verdict`` the sim makes, with the memory the scale implies (8 decisions at 0.5 m) and
 with the 4 decisions it kept before stop 13. Flights differ between the two (the filter allows
 different moves), so each line also says how many calls and goals it timed.
+
+    .venv/bin/python benchmarks/bench_shield.py --starvation [--scale 0.5] [--json OUT]
+
+``--starvation`` checks whether preparing frames starves another thread of the GIL, as the
+daemon's loop would be: a thread runs ``Decider.prepare`` 30 times a second (the D435's rate)
+while the main thread sleeps 2 ms, 3000 times; it prints how much each sleep overran (p50, p99,
+max), for the first filter and the shipped one, and with no preparing thread at all.
 """
 
 from __future__ import annotations
@@ -122,6 +129,65 @@ def time_flights(policy: Policy, shield: ShieldConfig, scale_m: float, trials: i
     }
 
 
+def oversleep(policy: Policy, shield: ShieldConfig | None, scale_m: float, sleeps: int = 3000,
+              sleep_s: float = 0.002, rate_hz: float = 30.0) -> dict[str, float]:
+    """How late ``time.sleep(sleep_s)`` returns on this thread while another thread prepares a frame
+    ``rate_hz`` times a second with ``shield`` (None: no other thread)."""
+    import threading
+
+    stop = threading.Event()
+    worker = None
+    if shield is not None:
+        prims = PrimitiveSet(scale_m=scale_m, duration_s=scale_m)
+        decider = Decider(policy, policy.preprocess_config(), prims, shield)
+        frame = DepthFrame(CameraFeed().frame, 0.0, 0)
+        memory = decider.memory
+        for k in range(decider.shield.memory_steps):
+            memory = decider.prepare(frame, decider.snapshot(), _motion(0.25 * k), memory).memory
+        motion = _motion(0.25 * decider.shield.memory_steps)
+
+        def prepare_at_rate() -> None:
+            period = 1.0 / rate_hz
+            nxt = time.perf_counter()
+            while not stop.is_set():
+                decider.prepare(frame, decider.snapshot(), motion, memory)
+                nxt += period
+                stop.wait(max(0.0, nxt - time.perf_counter()))
+
+        worker = threading.Thread(target=prepare_at_rate, daemon=True)
+        worker.start()
+    late = np.empty(sleeps)
+    try:
+        for i in range(sleeps):
+            t0 = time.perf_counter()
+            time.sleep(sleep_s)
+            late[i] = time.perf_counter() - t0 - sleep_s
+    finally:
+        stop.set()
+        if worker is not None:
+            worker.join()
+    ms = late * 1e3
+    return {
+        "oversleep_p50_ms": round(float(np.median(ms)), 3),
+        "oversleep_p99_ms": round(float(np.percentile(ms, 99)), 3),
+        "oversleep_max_ms": round(float(ms.max()), 3),
+    }
+
+
+def main_starvation(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig) -> None:
+    first = dataclasses.replace(shipped, depth_pooling="mean", shadow_m=0.0, known_floor=False)
+    out = {"scale_m": args.scale, "sleep_ms": 2.0, "sleeps": 3000, "rate_hz": 30.0, "starvation": {}}
+    for name, cfg in (("no preparing thread", None), ("first (mean view, no shadow, no floor)", first),
+                      ("shipped", shipped)):
+        r = oversleep(policy, cfg, args.scale)
+        out["starvation"][name] = r
+        print(f"{name:40s} 2-ms sleep overran: p50 {r['oversleep_p50_ms']:.3f} ms  "
+              f"p99 {r['oversleep_p99_ms']:.3f} ms  max {r['oversleep_max_ms']:.3f} ms")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
+        print(f"wrote {args.json}")
+
+
 def main_flights(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig) -> None:
     out = {"scale_m": args.scale, "trials": args.trials, "flights": {}}
     time_flights(policy, shipped, args.scale, 1, envs=(1,))  # warm-up: compiled kernels, caches
@@ -141,6 +207,7 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=300)
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--flights", action="store_true", help="time the verdict in eval flights on Env 1-7")
+    ap.add_argument("--starvation", action="store_true", help="does preparing frames starve another thread?")
     ap.add_argument("--trials", type=int, default=1,
                     help="--flights: flights per world (1: one vehicle a call)")
     args = ap.parse_args()
@@ -151,6 +218,9 @@ def main() -> None:
     shipped = shield_config_from_meta(policy.checkpoint.meta)
     if args.flights:
         main_flights(args, policy, shipped)
+        return
+    if args.starvation:
+        main_starvation(args, policy, shipped)
         return
     variants = {
         "first (mean view, no shadow, no floor)": dataclasses.replace(

@@ -291,3 +291,24 @@ def test_bench_shield_flights_times_every_verdict_of_a_real_flight():
     assert r["memory_steps"] == 3 and r["flights"] == 1 and r["goals"] in (0, 1)
     assert r["calls"] >= (100 if r["goals"] else 2)  # 60 m at 0.5 m a step: ~120 decisions to the goal
     assert 0 < r["verdict_median_ms"] <= r["verdict_p99_ms"]
+
+
+def test_bench_shield_starvation_measures_sleeps_with_and_without_a_preparing_thread():
+    """benchmarks/bench_shield.py --starvation (the GIL check of docs/daemon.md) returns ordered
+    oversleep figures, and its preparing thread stops."""
+    import sys
+    import threading
+    from pathlib import Path
+
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from quadnav_onboard.shield import shield_config_from_meta
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_shield
+
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    threads = threading.active_count()
+    for cfg in (None, shield_config_from_meta(policy.checkpoint.meta)):
+        r = bench_shield.oversleep(policy, cfg, 0.5, sleeps=40)
+        assert 0 <= r["oversleep_p50_ms"] <= r["oversleep_p99_ms"] <= r["oversleep_max_ms"]
+        assert threading.active_count() == threads
