@@ -312,3 +312,25 @@ def test_bench_shield_starvation_measures_sleeps_with_and_without_a_preparing_th
         r = bench_shield.oversleep(policy, cfg, 0.5, sleeps=40)
         assert 0 <= r["oversleep_p50_ms"] <= r["oversleep_p99_ms"] <= r["oversleep_max_ms"]
         assert threading.active_count() == threads
+
+
+def test_shield_error_script_compares_predicted_and_true_clearance(tmp_path):
+    """scripts/shield_error.py (the filter's error figures in docs/results.md): over real flights
+    in the narrow corridor, decisions near a wall are found and the error percentiles are ordered;
+    the held-out worlds are refused."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "shield_error.py"
+    out = tmp_path / "e.json"
+    run = subprocess.run([sys.executable, str(script), "--envs", "3", "--trials", "2", "--json", str(out)],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+    assert r["decisions"] >= 2 and 0 < r["near_decisions"] <= r["decisions"]
+    e = r["error_m"]
+    assert e["p50"] <= e["p90"] <= e["p95"] <= e["p99"] <= r["error_max_m"]
+    held_out = subprocess.run([sys.executable, str(script), "--envs", "8"], capture_output=True, text=True)
+    assert held_out.returncode == 2 and "held out" in held_out.stderr
