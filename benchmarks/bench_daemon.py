@@ -20,6 +20,8 @@ Figures:
 ``--record``: every flight also writes its MCAP flight record (``FlightRecorder`` with the
 daemon's default settings, its writer in a child process), as ``quadnav-onboard`` does unless
 ``--no-record``; ``--record-writer thread`` writes it from a thread of the flight process instead.
+``--switch-interval S`` sets the GIL's switch interval for the daemon (the 1 ms and 0.5 ms trials
+of docs/daemon.md and docs/review.md, first run through an ad-hoc wrapper).
 """
 
 from __future__ import annotations
@@ -269,7 +271,19 @@ def main() -> None:
         help="run one full garbage collection at step 40 of the main flight, on the daemon's thread, "
         "as the interpreter may at any time (its pause is in gc_pauses_main_run)",
     )
+    ap.add_argument(
+        "--switch-interval",
+        type=float,
+        default=None,
+        metavar="S",
+        help="sys.setswitchinterval(S) for the daemon's process (Python's default 0.005 s): how soon a "
+        "thread that holds the GIL hands it over",
+    )
     args = ap.parse_args()
+    if args.switch_interval is not None:
+        if not args.switch_interval > 0:
+            ap.error(f"--switch-interval: must be > 0 s, got {args.switch_interval}")
+        sys.setswitchinterval(args.switch_interval)
     if args.no_gc_freeze:
         import quadnav_onboard.daemon.app as app
 
@@ -296,6 +310,7 @@ def main() -> None:
         "recording": args.record,
         "gc_freeze": not args.no_gc_freeze,
         "full_gc_mid_flight": args.full_gc_mid_flight,
+        "switch_interval_s": sys.getswitchinterval(),
         "record_writer": (args.record_writer or FlightConfig().record.writer) if args.record else None,
     }
     stale: dict[str, list[float]] = {"depth": [], "odometry": []}
