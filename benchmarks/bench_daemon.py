@@ -45,7 +45,7 @@ import numpy as np
 
 from quadnav_onboard.config import PrimitiveConfig, parse_config
 from quadnav_onboard.daemon.app import FlightDaemon
-from quadnav_onboard.daemon.config import FlightConfig, MissionConfig, SafetyConfig
+from quadnav_onboard.daemon.config import DepthSourceConfig, FlightConfig, MissionConfig, SafetyConfig
 from quadnav_onboard.daemon.testing import constant_action_checkpoint
 from quadnav_onboard.frames import quat_from_yaw
 from quadnav_onboard.logs import configure_logging
@@ -121,11 +121,13 @@ class MocapFeed:
                 yield OdometrySample(pos.copy(), quat_from_yaw(0.0), time.monotonic())
 
 
-def config(max_steps: int) -> FlightConfig:
+def config(max_steps: int, prepare_every_frame: bool = False) -> FlightConfig:
+    depth = DepthSourceConfig(prepare_within_s=None) if prepare_every_frame else DepthSourceConfig()
     return FlightConfig(
         mission=MissionConfig(takeoff_speed_m_s=2.0, max_steps=max_steps, land_at_goal=False),
         primitives=parse_config(PrimitiveConfig, {"scale_m": 0.25, "duration_s": 0.25}),
         safety=SafetyConfig(land_on_abort=False, hold_before_land_s=0.0),
+        depth=depth,
     )
 
 
@@ -137,13 +139,14 @@ async def fly(
     record: Path | None = None,
     writer: str | None = None,
     full_gc: bool = False,
+    prepare_every_frame: bool = False,
 ) -> tuple[Any, float, float | None]:
     """Fly one benchmark flight; returns its summary, the daemon's CPU and the record writer
     process's CPU (fractions of one core; the latter None without a writer process)."""
     vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=15.0)
     depth, mocap = CameraFeed(), MocapFeed(vehicle)
     path = RoughPath(np.array([[0.0, 0.0, 1.5], [22.0, 0.0, 1.5]]), 1.0)
-    cfg = config(max_steps)
+    cfg = config(max_steps, prepare_every_frame)
     recorder = None
     if record is not None:
         from quadnav_onboard.record import FlightRecorder
@@ -272,6 +275,11 @@ def main() -> None:
         "as the interpreter may at any time (its pause is in gc_pauses_main_run)",
     )
     ap.add_argument(
+        "--prepare-every-frame",
+        action="store_true",
+        help="depth.prepare_within_s: null, every frame prepared on arrival (as before stop 15)",
+    )
+    ap.add_argument(
         "--switch-interval",
         type=float,
         default=None,
@@ -311,6 +319,7 @@ def main() -> None:
         "gc_freeze": not args.no_gc_freeze,
         "full_gc_mid_flight": args.full_gc_mid_flight,
         "switch_interval_s": sys.getswitchinterval(),
+        "prepare_within_s": config(1, args.prepare_every_frame).depth.prepare_within_s,
         "record_writer": (args.record_writer or FlightConfig().record.writer) if args.record else None,
     }
     stale: dict[str, list[float]] = {"depth": [], "odometry": []}
@@ -324,7 +333,7 @@ def main() -> None:
             gc_pauses = GcPauses() if cut is None else None
             full_gc = args.full_gc_mid_flight and cut is None
             summary, cpu, writer_cpu = asyncio.run(
-                fly(port, policy, steps, cut, record, args.record_writer, full_gc)
+                fly(port, policy, steps, cut, record, args.record_writer, full_gc, args.prepare_every_frame)
             )
             if gc_pauses is not None:
                 gc_pauses.close()
@@ -363,6 +372,7 @@ def main() -> None:
         "prepared": main_run["decision_paths"]["prepared"],
         "waited": main_run["decision_paths"]["waited"],
         "full": main_run["decision_paths"]["full"],
+        "depth_frames": main_run["depth_frames"],
         "decision_latency_p50_ms": main_run["decision_latency_ms"]["p50_ms"],
         "decision_latency_max_ms": main_run["decision_latency_ms"]["max_ms"],
         "frame_age_p50_ms": main_run["frame_age_ms"]["p50_ms"],
@@ -379,6 +389,8 @@ def main() -> None:
         f"DQN work at the step p50 {dqn['p50_ms']} / p99 {dqn['p99_ms']} ms"
     )
     print("decisions: {prepared} prepared on arrival, {waited} waited, {full} full".format(**paths))
+    print("depth frames: {received} received, {prepared} prepared, {checked} only checked".format(
+        **main_run["depth_frames"]))
     print(f"setpoint interval max {main_run['setpoint_interval_ms']['max_ms']} ms")
     print(f"frame age at the step (sensor latency): p50 {age['p50_ms']} / p99 {age['p99_ms']} ms")
     print(f"load average at start {results['loadavg_at_start']}, at end {results['loadavg_at_end']}")

@@ -27,6 +27,7 @@ __all__ = [
     "normalize_depth_m",
     "preprocess_depth_mm",
     "preprocess_depth_pair",
+    "validate_depth_mm",
 ]
 
 OUT_SIZE = 32
@@ -70,10 +71,9 @@ def area_downsample(img: NDArray[np.float32], size: int = OUT_SIZE) -> NDArray[n
     return np.stack([cv2.resize(f, (size, size), interpolation=cv2.INTER_AREA) for f in img])
 
 
-def _clean_mm(frame: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.uint16]:
-    """A checked frame with the range rules applied in the integer domain: 0 and > max read as
-    max, < min as min (the same mapping as :func:`normalize_depth_m`, in a few passes: this runs on
-    every frame in flight)."""
+def _checked(frame: NDArray[np.uint16], cfg: PreprocessConfig) -> tuple[NDArray, NDArray[np.bool_], int]:
+    """The frame as an array, its valid-pixel mask and the range's far end (mm), after the checks
+    every use of a frame shares (dtype, shape, enough valid pixels)."""
     arr = np.asarray(frame)
     if arr.dtype != np.uint16:
         raise DepthFrameError(f"depth frame must be uint16 millimetres, got dtype {arr.dtype}")
@@ -82,7 +82,6 @@ def _clean_mm(frame: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.ui
             f"depth frame must be 2-D and at least {OUT_SIZE}x{OUT_SIZE}, got shape {arr.shape}"
         )
     max_mm = int(np.floor(cfg.max_range_m * 1000.0))
-    min_mm = min(int(np.ceil(cfg.min_range_m * 1000.0)), max_mm)
     valid = (arr - np.uint16(1)) < np.uint16(max_mm)  # uint16 wrap-around: 0 -> 65535, invalid
     frac = np.count_nonzero(valid) / valid.size
     if frac < cfg.min_valid_fraction:
@@ -90,6 +89,21 @@ def _clean_mm(frame: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.ui
             f"depth frame has {frac:.1%} valid pixels (< {cfg.min_valid_fraction:.0%}): "
             "camera blocked or broken?"
         )
+    return arr, valid, max_mm
+
+
+def validate_depth_mm(frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()) -> None:
+    """Raise :class:`DepthFrameError` exactly when :func:`preprocess_depth_mm` would, without
+    preprocessing (a fraction of its cost: the daemon checks every frame it does not prepare)."""
+    _checked(frame, cfg)
+
+
+def _clean_mm(frame: NDArray[np.uint16], cfg: PreprocessConfig) -> NDArray[np.uint16]:
+    """A checked frame with the range rules applied in the integer domain: 0 and > max read as
+    max, < min as min (the same mapping as :func:`normalize_depth_m`, in a few passes: this runs on
+    every frame in flight)."""
+    arr, valid, max_mm = _checked(frame, cfg)
+    min_mm = min(int(np.ceil(cfg.min_range_m * 1000.0)), max_mm)
     depth_mm = np.where(valid, arr, np.uint16(max_mm))
     np.maximum(depth_mm, np.uint16(min_mm), out=depth_mm)
     return depth_mm

@@ -7,7 +7,9 @@ MAVLink is in test_daemon_e2e.py.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -145,6 +147,58 @@ async def test_a_blank_depth_frame_in_flight_stops_for_bad_depth(forward_policy:
     s = await rig.in_mission_then(lambda: setattr(rig.depth, "depth_mm", 0))
     assert s.stop_reason == "bad_depth" and s.exit_code == 3 and "valid pixels" in s.detail
     assert "hold" in rig.commands()
+
+
+def slow_step_config(prepare_within_s: float | None) -> FlightConfig:
+    """1-s steps (a real flight's), so most frames arrive well before the next step boundary."""
+    cfg = fast_config(max_steps=3)
+    prims = parse_config(PrimitiveConfig, {"scale_m": 0.25, "duration_s": 1.0})
+    depth = dataclasses.replace(cfg.depth, prepare_within_s=prepare_within_s)
+    return dataclasses.replace(cfg, primitives=prims, depth=depth)
+
+
+SLOW_PATH = RoughPath(PATH.waypoints_m, 0.25)  # the moving setpoint: one 0.25-m primitive per 1-s step
+
+
+@pytest.mark.parametrize("window_s", [0.1, None])
+async def test_only_frames_near_a_step_boundary_are_prepared(forward_policy: Policy, window_s) -> None:
+    """``depth.prepare_within_s``: in the mission, frames that arrive earlier than that before the
+    next step are only checked; every decision still finds its frame (prepared or prepared in the
+    step). null: every frame is prepared, none only checked."""
+    rig = Rig(forward_policy, slow_step_config(window_s), path=SLOW_PATH)
+    s = await asyncio.wait_for(rig.daemon.run(), 20)
+    assert s.stop_reason == "step_limit" and sum(s.decision_paths.values()) == s.steps == 3
+    frames = s.depth_frames
+    assert frames["prepared"] + frames["checked"] <= frames["received"] + s.steps
+    if window_s is None:
+        assert frames["checked"] == 0 and frames["prepared"] >= s.steps
+    else:  # 1-s steps at 30 fps: about 3 of every 30 frames in the mission are prepared
+        assert frames["checked"] > 2 * frames["prepared"] > 0
+
+
+async def test_a_bad_frame_early_in_a_step_stops_the_flight_before_the_next_step(
+    forward_policy: Policy,
+) -> None:
+    """A frame only checked (too early to be prepared) still stops the flight on arrival, not at
+    the next step boundary."""
+    rig = Rig(forward_policy, slow_step_config(0.1), path=SLOW_PATH)
+    timing: dict[str, float] = {}
+
+    async def blank_frames_after_step_1() -> None:
+        await rig.when(lambda: rig.daemon.pending_step is not None and rig.daemon.pending_step["step"] >= 1)
+        timing["to_boundary_s"] = rig.daemon.next_step_mono - time.monotonic()  # type: ignore[operator]
+        t_bad = time.monotonic()
+        rig.depth.depth_mm = 0
+        await rig.when(lambda: rig.daemon.stop_reason is not None)
+        timing["to_stop_s"] = time.monotonic() - t_bad
+
+    trigger = asyncio.ensure_future(blank_frames_after_step_1())
+    s = await asyncio.wait_for(rig.daemon.run(), 20)
+    await trigger
+    assert s.stop_reason == "bad_depth" and "valid pixels" in s.detail
+    assert timing["to_boundary_s"] > 0.5  # the blank frames began early in the step
+    assert timing["to_stop_s"] < timing["to_boundary_s"] - 0.2  # caught on arrival, not at the step
+    assert s.depth_frames["checked"] >= 1
 
 
 async def test_the_step_limit_holds(forward_policy: Policy) -> None:

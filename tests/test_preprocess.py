@@ -14,6 +14,7 @@ from quadnav_onboard.preprocess import (
     normalize_depth_m,
     preprocess_depth_mm,
     preprocess_depth_pair,
+    validate_depth_mm,
 )
 
 CFG = PreprocessConfig()
@@ -87,9 +88,28 @@ def test_any_resolution_gives_32x32_in_range(h, w):
     ],
 )
 def test_unusable_frames_are_rejected(frame, match):
-    """Wrong dtype, wrong shape, too small or all invalid: a clear DepthFrameError."""
+    """Wrong dtype, wrong shape, too small or all invalid: a clear DepthFrameError, from the
+    check alone (what the daemon runs on frames it does not prepare) as from preprocessing."""
     with pytest.raises(DepthFrameError, match=match):
         preprocess_depth_mm(frame)
+    with pytest.raises(DepthFrameError, match=match):
+        validate_depth_mm(frame)
+
+
+@given(st.floats(0.0, 0.2), st.integers(0, 2**32 - 1))
+def test_the_check_alone_accepts_exactly_what_preprocessing_accepts(invalid_share, seed):
+    """Frames with a share of invalid pixels around the limit: the check raises iff preprocessing does."""
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(200, 12_000, (60, 80)).astype(np.uint16)
+    frame[rng.random(frame.shape) < 1.0 - invalid_share] = 0  # mostly invalid: near min_valid_fraction
+    outcomes = []
+    for fn in (preprocess_depth_mm, validate_depth_mm):
+        try:
+            fn(frame, CFG)
+            outcomes.append("ok")
+        except DepthFrameError as exc:
+            outcomes.append(str(exc))
+    assert outcomes[0] == outcomes[1]
 
 
 def test_nearest_view_keeps_a_thin_pole_and_ignores_a_lone_speckle():

@@ -410,6 +410,7 @@ class FlightDaemon(StopLadder):
         self.notifier.status("mission")
         k = 0
         while True:
+            self.next_step_mono = t0 + k * duration  # frames well before it are only checked
             await asyncio.sleep(max(0.0, t0 + k * duration - time.monotonic()))
             odom = self.latest_odom.value
             pos = np.asarray(odom.pos_world_m, dtype=np.float64)  # type: ignore[union-attr]

@@ -24,7 +24,7 @@ from quadnav_onboard.daemon.stats import LatencyStats, Latest
 from quadnav_onboard.daemon.summary import NullNotifier
 from quadnav_onboard.daemon.supervisor import FlightSnapshot, StopReason, check_in_flight
 from quadnav_onboard.logs import get_logger
-from quadnav_onboard.preprocess import DepthFrameError
+from quadnav_onboard.preprocess import DepthFrameError, validate_depth_mm
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 from quadnav_onboard.vehicle import VehicleError, VehicleLink
 
@@ -52,6 +52,10 @@ class RunStats:
         self.hold_reaction_s: float | None = None
         """Stale-input threshold crossing -> hold command issued (None if no such stop)."""
         self.depth_frames = 0
+        self.depth_frames_prepared = 0
+        """Frames preprocessed and run through the depth lane (on arrival or at a step)."""
+        self.depth_frames_checked = 0
+        """Frames only checked, too early before a step boundary to be used (``prepare_within_s``)."""
         self.odometry_samples = 0
         self.setpoints = 0
 
@@ -87,6 +91,8 @@ class Loops:
         self.pending_step: dict[str, Any] | None = None
         self.depth_error: str | None = None
         self._preparing: asyncio.Future[PreparedFrame] | None = None
+        self.next_step_mono: float | None = None
+        """When the mission's next step boundary falls (monotonic s); None outside the mission."""
         self.stats = RunStats()
 
     # --- stop requests -------------------------------------------------------------------------
@@ -145,26 +151,47 @@ class Loops:
         """Once flying, prepare each new depth frame in the DQN executor as it arrives.
 
         Latest wins: frames that arrive while one is being prepared are skipped, except the newest,
-        which is prepared next. A frame that preprocessing rejects is flagged as ``depth_error``
-        (while it is still the newest), so the supervisor stops the flight for bad depth.
+        which is prepared next. In the mission, with ``depth.prepare_within_s`` set, a frame that
+        arrives earlier than that before the next step boundary is only checked, not prepared: the
+        step uses the newest frame, and a later one will replace it. A frame that is rejected
+        (checked or prepared) is flagged as ``depth_error`` (while it is still the newest), so the
+        supervisor stops the flight for bad depth.
         """
         seq = 0
+        window = self.cfg.depth.prepare_within_s
         while True:
             frame = await self.latest_depth.wait_newer(seq)
             seq = self.latest_depth.seq
             if not self.flying or self.stop_reason is not None:  # type: ignore[attr-defined]
                 continue
+            due = self.next_step_mono
             try:
-                await self._prepare(frame)
+                if window is not None and due is not None and time.monotonic() < due - window:
+                    await self._check(frame)
+                else:
+                    await self._prepare(frame)
             except DepthFrameError as exc:
                 if self.latest_depth.value is frame:
                     self.depth_error = str(exc)
             except Exception as exc:  # a bug: the step prepares its frame itself
                 log.error("depth_prepare_failed", error=f"{type(exc).__name__}: {exc}")
 
+    def _check(self, frame: DepthFrame) -> asyncio.Future[None]:
+        """Only the checks of ``frame`` (raises ``DepthFrameError`` as preparing it would), in the
+        DQN executor, off the loop."""
+        self.stats.depth_frames_checked += 1
+        loop = asyncio.get_running_loop()
+        return loop.run_in_executor(
+            self._executor,  # type: ignore[attr-defined]
+            validate_depth_mm,
+            frame.depth_mm,
+            self.decider.preprocess,  # type: ignore[attr-defined]
+        )
+
     def _prepare(self, frame: DepthFrame) -> asyncio.Future[PreparedFrame]:
         """Preparation of ``frame`` in the DQN executor, against a snapshot of the history now."""
         decider = self.decider  # type: ignore[attr-defined]
+        self.stats.depth_frames_prepared += 1
         loop = asyncio.get_running_loop()
         fut = loop.run_in_executor(
             self._executor,  # type: ignore[attr-defined]

@@ -52,6 +52,8 @@ class FlightSummary:
     decision_paths: dict[str, int]
     """How each decision got its prepared frame: ready at the step boundary, awaited, or prepared
     in the step: {"prepared": n, "waited": n, "full": n}."""
+    depth_frames: dict[str, int]
+    """Depth frames received, fully prepared, and only checked (``depth.prepare_within_s``)."""
     setpoint_interval_ms: dict[str, float | None]
     """Interval between setpoints sent: n, p50, p99, max (ms)."""
     hold_reaction_ms: float | None
@@ -90,6 +92,11 @@ class FlightSummary:
             inference_ms=lat(stats.inference),
             frame_age_ms=lat(stats.frame_age),
             decision_paths=dict(stats.decision_paths),
+            depth_frames={
+                "received": stats.depth_frames,
+                "prepared": stats.depth_frames_prepared,
+                "checked": stats.depth_frames_checked,
+            },
             setpoint_interval_ms=lat(stats.setpoint_interval),
             hold_reaction_ms=None if hold is None else _r(hold * 1e3),
             model_sha256=model_sha256,
@@ -116,6 +123,9 @@ class FlightSummary:
             fmt("frame age at the step (sensor latency)", self.frame_age_ms),
             "decisions: {prepared} on a frame prepared on arrival, {waited} waited for its "
             "preparation, {full} prepared in the step".format(**self.decision_paths),
+            "depth frames: {received} received, {prepared} prepared, {checked} only checked".format(
+                **self.depth_frames
+            ),
             fmt("setpoint interval", self.setpoint_interval_ms),
         ]
         if self.hold_reaction_ms is not None:
