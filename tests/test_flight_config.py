@@ -64,3 +64,13 @@ def test_a_real_flight_needs_waypoints(tmp_path: Path) -> None:
     path.write_text("mission: {speed_m_s: 0.5}\n")
     with pytest.raises(ConfigError, match=r"mission\.waypoints_m"):
         load_flight_config(path)
+
+
+def test_the_preparation_window_spans_at_least_one_and_a_half_frames() -> None:
+    """depth.prepare_within_s as configured at 30 fps; widened to 1.5 frame periods for a slow
+    camera (so a frame normally arrives inside it); null stays null (every frame prepared)."""
+    from quadnav_onboard.daemon.config import DepthSourceConfig
+
+    assert DepthSourceConfig().preparation_window_s() == 0.1
+    assert DepthSourceConfig(fps=6.0).preparation_window_s() == 0.25
+    assert DepthSourceConfig(prepare_within_s=None).preparation_window_s() is None

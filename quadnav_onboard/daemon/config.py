@@ -146,7 +146,14 @@ class DepthSourceConfig:
     """In the mission, fully prepare (preprocess, depth lane, filter verdict) only the frames that
     arrive within this many seconds before the next step boundary; earlier ones are only checked
     (a bad frame still stops the flight on arrival). One frame per step is used, so this saves
-    most of the work at 30 fps. null: prepare every frame."""
+    most of the work at 30 fps. Never less than 1.5 frame periods (``preparation_window_s``), so a
+    frame normally falls inside it. null: prepare every frame."""
+
+    def preparation_window_s(self) -> float | None:
+        """The window in effect: ``prepare_within_s``, at least 1.5 frame periods at ``fps``."""
+        if self.prepare_within_s is None:
+            return None
+        return max(self.prepare_within_s, 1.5 / self.fps)
 
 
 @dataclass(frozen=True)

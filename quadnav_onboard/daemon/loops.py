@@ -158,7 +158,7 @@ class Loops:
         supervisor stops the flight for bad depth.
         """
         seq = 0
-        window = self.cfg.depth.prepare_within_s
+        window = self.cfg.depth.preparation_window_s()
         while True:
             frame = await self.latest_depth.wait_newer(seq)
             seq = self.latest_depth.seq
