@@ -56,38 +56,59 @@ def _motion(x: float) -> Motion:
     return Motion(p, np.zeros(3), p.copy(), np.zeros(3), 0.0)
 
 
-def time_prepare(policy: Policy, shield: ShieldConfig, scale_m: float, calls: int) -> dict[str, float]:
+def first_filter(shipped: ShieldConfig) -> ShieldConfig:
+    """The filter's first version: area-averaged view, no shadows, no known floor."""
+    return dataclasses.replace(shipped, depth_pooling="mean", shadow_m=0.0, known_floor=False)
+
+
+def ms_stats(seconds: Sequence[float], prefix: str = "") -> dict[str, float]:
+    """Median and p99 (ms, 3 decimals) of durations in seconds, keys ``{prefix}median_ms`` etc."""
+    ms = np.asarray(seconds) * 1e3
+    return {
+        f"{prefix}median_ms": round(float(np.median(ms)), 3),
+        f"{prefix}p99_ms": round(float(np.percentile(ms, 99)), 3),
+    }
+
+
+def write_json(out: dict[str, Any], path: Path | None) -> None:
+    if path is not None:
+        path.write_text(json.dumps(out, indent=2), encoding="utf-8")
+        print(f"wrote {path}")
+
+
+def decider_with_full_memory(
+    policy: Policy, shield: ShieldConfig, scale_m: float
+) -> tuple[Decider, DepthFrame, Any, Motion]:
+    """A decider at ``scale_m`` whose memory is full: the benchmark frame seen from points 0.25 m
+    apart along the path, as in a flight; with that memory and the motion of the next view."""
     prims = PrimitiveSet(scale_m=scale_m, duration_s=scale_m)
     decider = Decider(policy, policy.preprocess_config(), prims, shield)
     frame = DepthFrame(CameraFeed().frame, 0.0, 0)
     memory = decider.memory
-    for k in range(decider.shield.memory_steps):  # a full memory, views 0.25 m apart
+    for k in range(decider.shield.memory_steps):
         memory = decider.prepare(frame, decider.snapshot(), _motion(0.25 * k), memory).memory
-    motion = _motion(0.25 * decider.shield.memory_steps)
+    return decider, frame, memory, _motion(0.25 * decider.shield.memory_steps)
+
+
+def time_prepare(policy: Policy, shield: ShieldConfig, scale_m: float, calls: int) -> dict[str, float]:
+    decider, frame, memory, motion = decider_with_full_memory(policy, shield, scale_m)
     ts = []
     for _ in range(calls + 20):
         t0 = time.perf_counter()
         decider.prepare(frame, decider.snapshot(), motion, memory)
         ts.append(time.perf_counter() - t0)
-    ms = np.array(ts[20:]) * 1e3
-    out = {
-        "memory_steps": decider.shield.memory_steps,
-        "median_ms": round(float(np.median(ms)), 3),
-        "p99_ms": round(float(np.percentile(ms, 99)), 3),
-    }
+    out: dict[str, float] = {"memory_steps": decider.shield.memory_steps, **ms_stats(ts[20:])}
     if shield.enabled:  # the verdict alone (shield_verdict on the full memory), as part of prepare
         m = motion
         mem = decider.prepare(frame, decider.snapshot(), motion, memory).memory
         ts = []
         for _ in range(calls + 20):
             t0 = time.perf_counter()
-            shield_verdict(prims, mem.points, mem.depth_m, mem.pose, m.start_world_m[None],
+            shield_verdict(decider.prims, mem.points, mem.depth_m, mem.pose, m.start_world_m[None],
                            m.start_vel_world_m_s[None], np.full(1, m.yaw_rad), m.pos_world_m[None],
                            m.vel_world_m_s[None], decider.shield, floor_z_m=FLOOR_Z_M)
             ts.append(time.perf_counter() - t0)
-        ms = np.array(ts[20:]) * 1e3
-        out["verdict_median_ms"] = round(float(np.median(ms)), 3)
-        out["verdict_p99_ms"] = round(float(np.percentile(ms, 99)), 3)
+        out.update(ms_stats(ts[20:], prefix="verdict_"))
     return out
 
 
@@ -118,14 +139,12 @@ def time_flights(policy: Policy, shield: ShieldConfig, scale_m: float, trials: i
         rows = evaluate(policy_greedy_fn(policy), worlds, trials, 0, cfg)
     finally:
         sim_env.shield_verdict = real
-    ms = np.array(ts) * 1e3
     return {
         "memory_steps": cfg.shield.memory_steps,
-        "calls": int(ms.size),
+        "calls": len(ts),
         "goals": sum(r.outcome == "goal" for r in rows),
         "flights": len(rows),
-        "verdict_median_ms": round(float(np.median(ms)), 3),
-        "verdict_p99_ms": round(float(np.percentile(ms, 99)), 3),
+        **ms_stats(ts, prefix="verdict_"),
     }
 
 
@@ -138,13 +157,7 @@ def oversleep(policy: Policy, shield: ShieldConfig | None, scale_m: float, sleep
     stop = threading.Event()
     worker = None
     if shield is not None:
-        prims = PrimitiveSet(scale_m=scale_m, duration_s=scale_m)
-        decider = Decider(policy, policy.preprocess_config(), prims, shield)
-        frame = DepthFrame(CameraFeed().frame, 0.0, 0)
-        memory = decider.memory
-        for k in range(decider.shield.memory_steps):
-            memory = decider.prepare(frame, decider.snapshot(), _motion(0.25 * k), memory).memory
-        motion = _motion(0.25 * decider.shield.memory_steps)
+        decider, frame, memory, motion = decider_with_full_memory(policy, shield, scale_m)
 
         def prepare_at_rate() -> None:
             period = 1.0 / rate_hz
@@ -175,7 +188,7 @@ def oversleep(policy: Policy, shield: ShieldConfig | None, scale_m: float, sleep
 
 
 def main_starvation(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig) -> None:
-    first = dataclasses.replace(shipped, depth_pooling="mean", shadow_m=0.0, known_floor=False)
+    first = first_filter(shipped)
     out = {"scale_m": args.scale, "sleep_ms": 2.0, "sleeps": 3000, "rate_hz": 30.0, "starvation": {}}
     for name, cfg in (("no preparing thread", None), ("first (mean view, no shadow, no floor)", first),
                       ("shipped", shipped)):
@@ -183,9 +196,7 @@ def main_starvation(args: argparse.Namespace, policy: Policy, shipped: ShieldCon
         out["starvation"][name] = r
         print(f"{name:40s} 2-ms sleep overran: p50 {r['oversleep_p50_ms']:.3f} ms  "
               f"p99 {r['oversleep_p99_ms']:.3f} ms  max {r['oversleep_max_ms']:.3f} ms")
-    if args.json:
-        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
-        print(f"wrote {args.json}")
+    write_json(out, args.json)
 
 
 def main_flights(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig) -> None:
@@ -196,9 +207,7 @@ def main_flights(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig
         out["flights"][name] = r
         print(f"{name:38s} memory {r['memory_steps']:3d}  verdict median {r['verdict_median_ms']:.3f} ms  "
               f"p99 {r['verdict_p99_ms']:.3f} ms  ({r['calls']} calls, {r['goals']}/{r['flights']} goals)")
-    if args.json:
-        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
-        print(f"wrote {args.json}")
+    write_json(out, args.json)
 
 
 def main() -> None:
@@ -223,9 +232,7 @@ def main() -> None:
         main_starvation(args, policy, shipped)
         return
     variants = {
-        "first (mean view, no shadow, no floor)": dataclasses.replace(
-            shipped, depth_pooling="mean", shadow_m=0.0, known_floor=False
-        ),
+        "first (mean view, no shadow, no floor)": first_filter(shipped),
         "shipped": shipped,
         "shield off": dataclasses.replace(shipped, enabled=False),
     }
@@ -236,9 +243,7 @@ def main() -> None:
         verdict = f"  verdict median {r['verdict_median_ms']:.3f} ms" if "verdict_median_ms" in r else ""
         print(f"{name:40s} memory {r['memory_steps']:3d}  prepare median {r['median_ms']:.3f} ms  "
               f"p99 {r['p99_ms']:.3f} ms{verdict}")
-    if args.json:
-        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
-        print(f"wrote {args.json}")
+    write_json(out, args.json)
 
 
 if __name__ == "__main__":
