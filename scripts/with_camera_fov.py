@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import math
 import sys
 
 import sim_harness.env as sim_env
@@ -28,7 +29,8 @@ def patch_camera(hfov_deg: float, vfov_deg: float) -> CameraModel:
     """Make the env's renderer use a camera of the given field of view (240 rows, square pixels)."""
     if not (0 < hfov_deg < 180 and 0 < vfov_deg < 180):
         raise SystemExit(f"fields of view must be in (0, 180) deg, got --hfov {hfov_deg} --vfov {vfov_deg}")
-    width = max(1, round(240 * hfov_deg / vfov_deg))
+    aspect = math.tan(math.radians(hfov_deg) / 2) / math.tan(math.radians(vfov_deg) / 2)
+    width = max(1, round(240 * aspect))  # square pixels: the image plane's aspect, not the angles'
     camera = CameraModel(width, 240, hfov_deg, vfov_deg)
     sim_env.render_inputs = functools.partial(render_inputs, camera=camera)  # type: ignore[assignment]
     return camera

@@ -241,4 +241,3 @@ def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp
     bad = subprocess.run([sys.executable, str(script), "--hfov", "0", "--vfov", "90", "--", "eval"],
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "--hfov 0" in bad.stderr
-
