@@ -84,6 +84,11 @@ class RoughPath:
         d = self._seg_dir[idx]
         return np.arctan2(d[..., 1], d[..., 0])
 
+    def heading_at(self, pos_world_m: ArrayLike) -> NDArray[np.float64]:
+        """The heading frame's yaw for a quad at ``pos_world_m``: the path's heading at its progress
+        (what the planner's body frame is, in training and in flight)."""
+        return self.yaw_at(self.progress_m(pos_world_m))
+
     def setpoint_at(self, t_s: ArrayLike) -> NDArray[np.float64]:
         """Moving setpoint (world, m) ``t_s`` seconds after the mission start; stops at the goal."""
         return self.point_at(np.maximum(np.asarray(t_s, dtype=np.float64), 0.0) * self.speed_m_s)

@@ -64,7 +64,7 @@ def main() -> int:
         while not env.done.all():
             action = masked_argmax(policy.q_values_batch(depth, rel), env.allowed)
             live = np.flatnonzero(~env.done)
-            yaw = world.path.yaw_at(world.path.progress_m(env.pos_m[live]))
+            yaw = world.path.heading_at(env.pos_m[live])
             samples = primitive_samples(
                 env.prims, env.cmd_pos_m[live], env.cmd_vel_m_s[live], yaw, env_cfg.shield,
                 pos_world_m=env.pos_m[live], vel_world_m_s=env.vel_m_s[live],

@@ -269,7 +269,7 @@ class VecQuadNavEnv:
         d_prev = np.zeros(n)
         for world, ids in groups:  # path terms at the start of the step
             pos0 = self.pos_m[ids]
-            yaw0[ids] = world.path.yaw_at(world.path.progress_m(pos0))
+            yaw0[ids] = world.path.heading_at(pos0)
             sp0 = world.path.setpoint_at(self.steps[ids] * prims.duration_s)
             d_prev[ids] = np.linalg.norm(sp0 - pos0, axis=-1)
         # the primitive, in the heading frame, from the last commanded end point (C1); one batched

@@ -35,6 +35,8 @@ def test_polyline_progress_and_setpoint_turn_the_corner():
     np.testing.assert_allclose(p.setpoint_at(7.5), [10, 5, 2])
     assert p.progress_m([11.0, 4.0, 2.0]) == pytest.approx(14.0)
     assert p.yaw_at(15.0) == pytest.approx(np.pi / 2)
+    # the heading frame of a quad: the heading of the segment it has progressed along
+    np.testing.assert_allclose(p.heading_at([[5.0, 1.0, 2.0], [11.0, 4.0, 2.0]]), [0.0, np.pi / 2])
 
 
 def test_batched_closest_matches_single():

@@ -394,7 +394,7 @@ class FlightDaemon(StopLadder):
         odom, start = self.latest_odom.value, self.next_start
         if odom is None or start is None:
             return None
-        yaw = float(self.path.yaw_at(self.path.progress_m(np.asarray(odom.pos_world_m, dtype=np.float64))))
+        yaw = float(self.path.heading_at(np.asarray(odom.pos_world_m, dtype=np.float64)))
         return Motion.of(odom, start[0], start[1], yaw)
 
     async def _mission(self) -> None:

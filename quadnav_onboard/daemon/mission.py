@@ -50,7 +50,7 @@ def step_inputs(path: RoughPath, k: int, duration_s: float, pos_world_m: ArrayLi
     """State of step ``k`` for a quad measured at ``pos_world_m`` (world, m)."""
     pos = np.asarray(pos_world_m, dtype=np.float64)
     sp = path.setpoint_at(k * duration_s)
-    yaw = float(path.yaw_at(path.progress_m(pos)))
+    yaw = float(path.heading_at(pos))
     rel = path.relative_state(sp, pos, yaw)
     return StepInputs(sp, yaw, rel, float(np.linalg.norm(sp - pos)))
 
