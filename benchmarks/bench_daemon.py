@@ -12,7 +12,7 @@ Figures:
     (depth lane run on arrival), waited for its preparation, or prepared it in the step, and the
     frame's age at the step boundary (sensor latency, reported apart)
   * setpoint interval at 20 Hz under that load (p99 goal <= 1.5 x 50 ms = 75 ms)
-  * daemon CPU, % of one core (goal <= 25 %)
+  * daemon CPU, % of one core (goal <= 25 %), and by thread (loop, DQN executor, native, recorder)
   * stale depth / stale odometry -> hold command issued, after the threshold (goal <= 100 ms)
 
     .venv/bin/python benchmarks/bench_daemon.py --out bench_daemon.json [--model CKPT.pt] [--record]
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import gc
 import json
 import math
@@ -36,6 +37,7 @@ import platform
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -121,6 +123,49 @@ class MocapFeed:
                 yield OdometrySample(pos.copy(), quat_from_yaw(0.0), time.monotonic())
 
 
+def cpu_seconds(stat: Path) -> float:
+    """utime + stime (s) of a process or thread, from its /proc ``stat`` file."""
+    fields = stat.read_text().rsplit(")", 1)[1].split()  # the name may hold spaces; it ends at ')'
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class ThreadCpu:
+    """CPU time of each thread of this process over a flight, by thread name (Python threads by
+    their ``threading`` name, native ones, such as MAVSDK's, as ``native``), from
+    ``/proc/self/task/*/stat`` sampled every 0.25 s: a thread that ends between samples keeps its
+    last sample."""
+
+    def __init__(self) -> None:
+        self.first: dict[int, float] = self._read()
+        self.last: dict[int, float] = dict(self.first)
+        self.names: dict[int, str] = {}
+
+    @staticmethod
+    def _read() -> dict[int, float]:
+        out = {}
+        for task in Path("/proc/self/task").iterdir():
+            with contextlib.suppress(OSError, ValueError):
+                out[int(task.name)] = cpu_seconds(task / "stat")
+        return out
+
+    def sample(self) -> None:
+        self.last.update(self._read())
+        self.names.update({t.native_id: t.name for t in threading.enumerate() if t.native_id is not None})
+
+    async def run(self) -> None:
+        while True:
+            self.sample()
+            await asyncio.sleep(0.25)
+
+    def fractions(self, wall_s: float) -> dict[str, float]:
+        """Fraction of one core per thread name over ``wall_s``, largest first."""
+        by_name: dict[str, float] = {}
+        for tid, c in self.last.items():
+            name = self.names.get(tid, "native")
+            by_name[name] = by_name.get(name, 0.0) + (c - self.first.get(tid, 0.0)) / wall_s
+        return {k: round(v, 4) for k, v in sorted(by_name.items(), key=lambda kv: -kv[1]) if v > 0}
+
+
 def config(max_steps: int, prepare_every_frame: bool = False) -> FlightConfig:
     depth = DepthSourceConfig(prepare_within_s=None) if prepare_every_frame else DepthSourceConfig()
     return FlightConfig(
@@ -140,9 +185,10 @@ async def fly(
     writer: str | None = None,
     full_gc: bool = False,
     prepare_every_frame: bool = False,
-) -> tuple[Any, float, float | None]:
-    """Fly one benchmark flight; returns its summary, the daemon's CPU and the record writer
-    process's CPU (fractions of one core; the latter None without a writer process)."""
+) -> tuple[Any, float, float | None, dict[str, float]]:
+    """Fly one benchmark flight; returns its summary, the daemon's CPU, the record writer
+    process's CPU (fractions of one core; None without a writer process) and the daemon's CPU by
+    thread (:class:`ThreadCpu`)."""
     vehicle = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=15.0)
     depth, mocap = CameraFeed(), MocapFeed(vehicle)
     path = RoughPath(np.array([[0.0, 0.0, 1.5], [22.0, 0.0, 1.5]]), 1.0)
@@ -180,18 +226,21 @@ async def fly(
     async def sample_writer_cpu() -> None:  # the record's writer process, while it lives
         while writer_pid is not None:
             try:
-                fields = Path(f"/proc/{writer_pid}/stat").read_text().rsplit(")", 1)[1].split()
+                writer_cpu.append((time.monotonic(), cpu_seconds(Path(f"/proc/{writer_pid}/stat"))))
             except OSError:
                 return
-            ticks = int(fields[11]) + int(fields[12])  # utime + stime
-            writer_cpu.append((time.monotonic(), ticks / os.sysconf("SC_CLK_TCK")))
             await asyncio.sleep(0.25)
 
     sampler = asyncio.ensure_future(sample_writer_cpu())
+    threads = ThreadCpu()
+    thread_sampler = asyncio.ensure_future(threads.run())
     cpu0, wall0 = time.process_time(), time.monotonic()
     summary = await daemon.run()
-    cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
-    sampler.cancel()
+    wall = time.monotonic() - wall0
+    cpu = (time.process_time() - cpu0) / wall
+    threads.sample()
+    for t in (sampler, thread_sampler):
+        t.cancel()
     for t in (task, collector):
         if t is not None:
             t.cancel()
@@ -200,7 +249,7 @@ async def fly(
         (t0, c0), (t1, c1) = writer_cpu[0], writer_cpu[-1]
         writer_frac = (c1 - c0) / (t1 - t0)
         print(f"record writer process CPU: {100 * writer_frac:.1f} % of one core (sampled)")
-    return summary, cpu, writer_frac
+    return summary, cpu, writer_frac, threads.fractions(wall)
 
 
 def serve(world: Path, port: int) -> subprocess.Popen[bytes]:
@@ -332,7 +381,7 @@ def main() -> None:
             steps = 80 if cut is None else 30
             gc_pauses = GcPauses() if cut is None else None
             full_gc = args.full_gc_mid_flight and cut is None
-            summary, cpu, writer_cpu = asyncio.run(
+            summary, cpu, writer_cpu, thread_cpu = asyncio.run(
                 fly(port, policy, steps, cut, record, args.record_writer, full_gc, args.prepare_every_frame)
             )
             if gc_pauses is not None:
@@ -342,7 +391,11 @@ def main() -> None:
             emu.terminate()
             emu.wait(10)
         if cut is None:
-            results["main_run"] = {**summary.to_dict(), "daemon_cpu_fraction_of_one_core": round(cpu, 4)}
+            results["main_run"] = {
+                **summary.to_dict(),
+                "daemon_cpu_fraction_of_one_core": round(cpu, 4),
+                "daemon_cpu_by_thread_fraction_of_one_core": thread_cpu,
+            }
             if writer_cpu is not None:
                 results["main_run"]["record_writer_cpu_fraction_of_one_core"] = round(writer_cpu, 4)
             if record is not None:
@@ -391,6 +444,8 @@ def main() -> None:
     print("decisions: {prepared} prepared on arrival, {waited} waited, {full} full".format(**paths))
     print("depth frames: {received} received, {prepared} prepared, {checked} only checked".format(
         **main_run["depth_frames"]))
+    print("daemon CPU by thread, % of one core: " + ", ".join(
+        f"{k} {100 * v:.1f}" for k, v in main_run["daemon_cpu_by_thread_fraction_of_one_core"].items()))
     print(f"setpoint interval max {main_run['setpoint_interval_ms']['max_ms']} ms")
     print(f"frame age at the step (sensor latency): p50 {age['p50_ms']} / p99 {age['p99_ms']} ms")
     print(f"load average at start {results['loadavg_at_start']}, at end {results['loadavg_at_end']}")
