@@ -403,3 +403,34 @@ async def test_the_heap_is_frozen_for_the_flight_and_released_after(forward_poli
     assert s.stop_reason == "goal_reached"
     assert frozen_in_flight and frozen_in_flight[0] > 10_000  # torch, numpy, the model: all frozen
     assert gc.get_freeze_count() == 0
+
+
+def test_bench_daemon_thread_cpu_names_the_thread_that_worked() -> None:
+    """benchmarks/bench_daemon.py's CPU by thread (docs/daemon.md): a named thread that spins for
+    0.6 s shows up under its name, with the CPU it had used by the last sample taken while it
+    lived; an idle one does not."""
+    import sys
+    import threading
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_daemon
+
+    cpu = bench_daemon.ThreadCpu()
+    t0 = time.monotonic()
+
+    def spin() -> None:
+        while time.monotonic() - t0 < 0.6:
+            pass
+
+    busy = threading.Thread(target=spin, name="busy-bench")
+    idle = threading.Thread(target=time.sleep, args=(0.6,), name="idle-bench")
+    for t in (busy, idle):
+        t.start()
+    time.sleep(0.4)
+    cpu.sample()  # while both live: their names and CPU so far
+    for t in (busy, idle):
+        t.join()
+    cpu.sample()  # both gone: they keep the last sample
+    by_name = cpu.fractions(time.monotonic() - t0)
+    assert by_name["busy-bench"] > 0.1
+    assert by_name.get("idle-bench", 0.0) < 0.05
