@@ -156,14 +156,17 @@ def oversleep(policy: Policy, shield: ShieldConfig | None, scale_m: float, sleep
 
     stop = threading.Event()
     worker = None
+    prepares = 0
     if shield is not None:
         decider, frame, memory, motion = decider_with_full_memory(policy, shield, scale_m)
 
         def prepare_at_rate() -> None:
             period = 1.0 / rate_hz
             nxt = time.perf_counter()
+            nonlocal prepares
             while not stop.is_set():
                 decider.prepare(frame, decider.snapshot(), motion, memory)
+                prepares += 1
                 nxt += period
                 stop.wait(max(0.0, nxt - time.perf_counter()))
 
@@ -184,6 +187,7 @@ def oversleep(policy: Policy, shield: ShieldConfig | None, scale_m: float, sleep
         "oversleep_p50_ms": round(float(np.median(ms)), 3),
         "oversleep_p99_ms": round(float(np.percentile(ms, 99)), 3),
         "oversleep_max_ms": round(float(ms.max()), 3),
+        "prepares": prepares,
     }
 
 
