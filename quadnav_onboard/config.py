@@ -3,12 +3,19 @@
 Configs are plain frozen dataclasses with a docstring per field. :func:`parse_config` validates a
 mapping against one with pydantic (unknown keys, wrong types and out-of-range values are errors)
 and raises :class:`ConfigError` whose message names the file, the key path and the bad value.
+
+Every numeric field is finite (``allow_inf_nan: False`` in each class's pydantic config, so NaN
+and infinity are refused as "should be a finite number") and bounded on both sides by a stated
+physical range, given in its docstring: an infinite or absurd limit would switch its check off.
+A file that is empty, not UTF-8 text or not a mapping is refused too (:func:`load_yaml_config`);
+``{}`` asks for the defaults explicitly.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -20,15 +27,20 @@ from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
 from quadnav_onboard.reward import RewardParams
 
 __all__ = [
+    "CONFIG_DICT",
     "ConfigError",
     "PlannerConfig",
     "PrimitiveConfig",
     "load_yaml",
     "load_yaml_config",
+    "load_yaml_mapping",
     "parse_config",
 ]
 
 T = TypeVar("T")
+
+CONFIG_DICT: pydantic.ConfigDict = {"extra": "forbid", "allow_inf_nan": False}
+"""The pydantic config of every config dataclass: unknown keys are errors, and so are NaN and ±inf."""
 
 
 class ConfigError(ValueError):
@@ -61,6 +73,10 @@ def load_yaml(path: str | Path) -> Any:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not a UTF-8 text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start})"
+        ) from None
     try:
         return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
@@ -81,36 +97,55 @@ def _format_errors(source: str, err: pydantic.ValidationError) -> str:
     return "\n".join(lines)
 
 
+@cache
+def _adapter(cls: type[T]) -> pydantic.TypeAdapter[T]:
+    return pydantic.TypeAdapter(cls)
+
+
 def parse_config(cls: type[T], data: Any, source: str = "<config>") -> T:
-    """Validate ``data`` (a mapping, e.g. from YAML) into the frozen dataclass ``cls``."""
+    """Validate ``data`` (a mapping, e.g. from YAML; None = no keys) into the frozen dataclass ``cls``."""
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
-    adapter = pydantic.TypeAdapter(cls)
     try:
-        return adapter.validate_python(dict(data))
+        return _adapter(cls).validate_python(dict(data))
     except pydantic.ValidationError as exc:
         raise ConfigError(_format_errors(source, exc)) from None
 
 
+def load_yaml_mapping(path: str | Path) -> Any:
+    """A config file's YAML, refusing a file with no document (empty, or comments only): it would
+    otherwise stand for every default without a word. ``{}`` asks for the defaults."""
+    data = load_yaml(path)
+    if data is None:
+        raise ConfigError(f"{path}: the file is empty (no keys); write '{{}}' to take every default")
+    return data
+
+
 def load_yaml_config(cls: type[T], path: str | Path) -> T:
     """Load and validate a YAML file into ``cls``; errors name the file and key."""
-    return parse_config(cls, load_yaml(path), source=str(path))
+    return parse_config(cls, load_yaml_mapping(path), source=str(path))
+
+
+_UnitComponent = Annotated[float, pydantic.Field(ge=-1, le=1)]
+_Direction = tuple[_UnitComponent, _UnitComponent, _UnitComponent]
+_Directions = Annotated[tuple[_Direction, ...], pydantic.Field(min_length=1, max_length=64)]
 
 
 @dataclass(frozen=True)
 class PrimitiveConfig:
     """The action set (see :mod:`quadnav_onboard.primitives`)."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT
 
     scale_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 1.0
-    """Displacement (m) per axis of one primitive: 1.0 in simulation, 0.5 for real flight."""
+    """Displacement (m) per axis of one primitive, in (0, 5]: 1.0 in simulation, 0.5 for real flight."""
     duration_s: Annotated[float, pydantic.Field(gt=0, le=10)] = 1.0
-    """Duration (s) of one step, i.e. of one primitive."""
-    directions: tuple[tuple[float, float, float], ...] = DEFAULT_DIRECTIONS
-    """Unit end displacements (forward, left, up), one per action; default: the paper's 18."""
+    """Duration (s) of one step, i.e. of one primitive, in (0, 10]."""
+    directions: _Directions = DEFAULT_DIRECTIONS
+    """Unit end displacements (forward, left, up), each component in [-1, 1], one per action
+    (1 to 64 actions); default: the paper's 18."""
 
     def build(self) -> PrimitiveSet:
         return PrimitiveSet(self.directions, self.scale_m, self.duration_s)
@@ -120,7 +155,7 @@ class PrimitiveConfig:
 class PlannerConfig:
     """What training and flight must agree on: actions, preprocessing and reward."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT
 
     primitives: PrimitiveConfig = field(default_factory=PrimitiveConfig)
     """Motion primitives."""

@@ -33,14 +33,19 @@ class RoughPath:
         wps = np.asarray(self.waypoints_m, dtype=np.float64)
         if wps.ndim != 2 or wps.shape[0] < 2 or wps.shape[1] != 3:
             raise ValueError(f"waypoints must have shape (K>=2, 3), got {wps.shape}")
-        if not np.all(np.isfinite(wps)):
-            raise ValueError("waypoints must be finite")
+        bad = np.flatnonzero(~np.all(np.isfinite(wps), axis=1))
+        if bad.size:
+            raise ValueError(f"waypoints must be finite: waypoint [{bad[0]}] is {wps[bad[0]].tolist()}")
         if not (np.isfinite(self.speed_m_s) and self.speed_m_s > 0):
             raise ValueError(f"speed_m_s must be > 0, got {self.speed_m_s}")
         seg = np.diff(wps, axis=0)
         seg_len = np.linalg.norm(seg, axis=1)
-        if np.any(seg_len < 1e-6):
-            raise ValueError("consecutive waypoints must be distinct")
+        same = np.flatnonzero(seg_len < 1e-6)
+        if same.size:
+            k = int(same[0])
+            raise ValueError(
+                f"consecutive waypoints must be distinct: [{k}] and [{k + 1}] are both {wps[k].tolist()}"
+            )
         wps.setflags(write=False)
         object.__setattr__(self, "waypoints_m", wps)
         object.__setattr__(self, "_seg_len_m", seg_len)

@@ -15,9 +15,11 @@ average, after a 3x3 median so that a lone speckle is not an obstacle.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
+import pydantic
 from numpy.typing import NDArray
 
 __all__ = [
@@ -41,14 +43,22 @@ class DepthFrameError(ValueError):
 class PreprocessConfig:
     """Depth-to-input conversion; defaults are the D435's usable range."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    # config files: unknown keys are errors, and so are NaN and ±inf (quadnav_onboard.config.CONFIG_DICT)
+    __pydantic_config__ = {"extra": "forbid", "allow_inf_nan": False}
 
-    min_range_m: float = 0.2
-    """Nearest valid depth (m); nearer readings are clipped up to it."""
-    max_range_m: float = 10.0
-    """Farthest depth (m); farther and invalid readings become this, i.e. 1.0 after scaling."""
-    min_valid_fraction: float = 0.05
-    """A frame with fewer valid pixels than this fraction is rejected as unusable."""
+    min_range_m: Annotated[float, pydantic.Field(gt=0, le=10)] = 0.2
+    """Nearest valid depth (m), in (0, 10] and below ``max_range_m``; nearer readings are clipped up
+    to it."""
+    max_range_m: Annotated[float, pydantic.Field(gt=0, le=65)] = 10.0
+    """Farthest depth (m), in (0, 65] (uint16 millimetres end at 65.5 m); farther and invalid
+    readings become this, i.e. 1.0 after scaling."""
+    min_valid_fraction: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.05
+    """A frame with fewer valid pixels than this fraction, in (0, 1], is rejected as unusable (0
+    would accept a blocked camera's blank frame as "nothing seen")."""
+
+    def __post_init__(self) -> None:
+        if not self.min_range_m < self.max_range_m:
+            raise ValueError(f"min_range_m {self.min_range_m} must be below max_range_m {self.max_range_m}")
 
 
 def normalize_depth_m(

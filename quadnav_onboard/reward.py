@@ -16,34 +16,45 @@ and the quad (negative = the quad closed in), and ``d_t`` that distance at the e
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+import pydantic
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["RewardParams", "reward"]
 
 
+_Reward = Annotated[float, pydantic.Field(ge=-10, le=10)]
+"""A reward constant, in [-10, 10] (the paper's: [-1, 0.5]); 0 and negative values mean what they say."""
+_DistanceChangeM = Annotated[float, pydantic.Field(ge=-10, le=10)]
+"""A saturation bound (m) of the distance change over one step: in [-10, 10]."""
+
+
 @dataclass(frozen=True)
 class RewardParams:
-    """Constants of the paper's reward; defaults are the paper's."""
+    """Constants of the paper's reward; defaults are the paper's. The reward constants lie in
+    [-10, 10], the distance-change bounds in [-10, 10] m (lower below upper), ``max_deviation_m`` in
+    (0, 50] m and ``d_floor_m`` in (0, 5] m; a config file outside these is refused."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    # config files: unknown keys are errors, and so are NaN and ±inf (quadnav_onboard.config.CONFIG_DICT)
+    __pydantic_config__ = {"extra": "forbid", "allow_inf_nan": False}
 
-    r_lower: float = 0.0
+    r_lower: _Reward = 0.0
     """R_l: shaping reward at or beyond the upper saturation bound of Δd."""
-    r_upper: float = 0.5
+    r_upper: _Reward = 0.5
     """R_u: shaping reward at or beyond the lower saturation bound of Δd."""
-    dd_lower_m: float = -1.0
+    dd_lower_m: _DistanceChangeM = -1.0
     """Δd_l (m): lower saturation bound of the distance change."""
-    dd_upper_m: float = 1.0
+    dd_upper_m: _DistanceChangeM = 1.0
     """Δd_u (m): upper saturation bound of the distance change."""
-    deviation_penalty: float = -0.5
+    deviation_penalty: _Reward = -0.5
     """R_dp: reward when the quad is farther than ``max_deviation_m`` from the path."""
-    collision_penalty: float = -1.0
+    collision_penalty: _Reward = -1.0
     """R_cp: reward on collision."""
-    max_deviation_m: float = 5.0
+    max_deviation_m: Annotated[float, pydantic.Field(gt=0, le=50)] = 5.0
     """Deviation (m) from the rough path past which the episode ends with R_dp."""
-    d_floor_m: float = 0.25
+    d_floor_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.25
     """Floor (m) on d_t so the shaping reward stays finite as the quad meets the setpoint."""
 
     def __post_init__(self) -> None:

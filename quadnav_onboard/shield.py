@@ -25,12 +25,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Annotated
 
 import numba
 import numpy as np
+import pydantic
 from numpy.typing import ArrayLike, NDArray
 
-from quadnav_onboard.config import parse_config
+from quadnav_onboard.config import CONFIG_DICT, parse_config
 from quadnav_onboard.frames import body_to_world, pixel_slopes, world_to_body
 from quadnav_onboard.jit import CAN_CACHE
 from quadnav_onboard.preprocess import OUT_SIZE
@@ -54,62 +56,66 @@ __all__ = [
 INPUT_SIZE = OUT_SIZE
 
 
+_OffsetM = Annotated[float, pydantic.Field(ge=-1, le=1)]
+
+
 @dataclass(frozen=True)
 class ShieldConfig:
-    """The depth safety filter; off by default (the paper has none)."""
+    """The depth safety filter; off by default (the paper has none). Each numeric field's range is
+    in its docstring; a config file outside it is refused (:mod:`quadnav_onboard.config`)."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT
 
     enabled: bool = False
     """Veto primitives whose swept path comes closer than ``clearance_m`` to a seen obstacle."""
-    clearance_m: float = 0.5
+    clearance_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.5
     """Least allowed distance (m) from the primitive's predicted path to any remembered depth point
     (the quad's 0.3 m radius plus a margin for depth noise and what the prediction misses)."""
-    memory_steps: int = 4
+    memory_steps: Annotated[int, pydantic.Field(ge=1, le=64)] = 4
     """Decisions whose depth points are remembered (the current one included), counted at the
     primitive scale the model was trained with. Flown with shorter primitives, the filter keeps
     proportionally more decisions, so it remembers the same distance of travel
     (:func:`shield_at_scale`): 4 at 1 m is 8 at 0.5 m."""
-    samples: int = 8
+    samples: Annotated[int, pydantic.Field(ge=1, le=64)] = 8
     """Points sampled along each primitive (its start excluded)."""
-    lookahead_s: float = 0.3
+    lookahead_s: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot)."""
-    min_travel_m: float = 0.3
+    min_travel_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """A decision taken less than this far (m) from the last remembered one replaces it instead of
     pushing the oldest out: hovering in place does not forget what was seen on the way."""
-    track_omega_rad_s: float = 6.0
+    track_omega_rad_s: Annotated[float, pydantic.Field(gt=0, le=100)] = 6.0
     """Natural frequency (rad/s) of the position loop assumed when predicting the flown path. This
     is the daemon's model of PX4, kept apart from the simulated vehicle (``sim_harness.quad``) on
     purpose; with these defaults the two agree within 3 cm (tests/test_shield.py)."""
-    track_accel_m_s2: float = 4.0
+    track_accel_m_s2: Annotated[float, pydantic.Field(gt=0, le=50)] = 4.0
     """Acceleration limit (m/s^2) of that position loop (PX4's MPC_ACC_HOR_MAX-like)."""
-    track_dt_s: float = 0.05
+    track_dt_s: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.05
     """Largest integration step (s) of the prediction (the step divides the primitive evenly
     between the samples: 1/24 s for 1 s primitives and 8 samples)."""
     require_seen: bool = False
     """Also veto primitives that fly into space no remembered view saw to be free (beside or below
     the camera's field of view, behind obstacles). Safer in principle, but the planner then often
     hovers in place until the step limit (docs/results.md); off by default."""
-    seen_level_tol_m: float | None = None
+    seen_level_tol_m: Annotated[float, pydantic.Field(ge=0, le=10)] | None = None
     """Without ``require_seen``: samples more than this (m) above or below the vehicle must still
     lie in space a view saw free (climbs and descents into the unseen floor or ceiling); None = off."""
-    seen_margin_m: float = 0.3
+    seen_margin_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """A sample counts as seen free when it lies this far (m) in front of the measured depth."""
-    near_m: float = 0.4
+    near_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.4
     """Samples within this distance (m) of the vehicle's current position count as free."""
-    hfov_deg: float = 87.0
+    hfov_deg: Annotated[float, pydantic.Field(gt=0, lt=180)] = 87.0
     """Horizontal field of view (deg) of the depth camera the inputs come from (D435)."""
-    vfov_deg: float = 58.0
+    vfov_deg: Annotated[float, pydantic.Field(gt=0, lt=180)] = 58.0
     """Vertical field of view (deg) of the depth camera."""
-    max_range_m: float = 10.0
+    max_range_m: Annotated[float, pydantic.Field(gt=0, le=65)] = 10.0
     """Depth (m) of an input value of 1.0 (the preprocessing's max range): 'nothing seen'."""
-    search_radius_m: float = 1.5
+    search_radius_m: Annotated[float, pydantic.Field(gt=0, le=20)] = 1.5
     """Clearances are capped at this distance (m); points farther from every sample are ignored."""
     depth_pooling: str = "min"
     """How the filter's 32x32 depth comes from the camera frame: ``"min"``, the nearest surface in
     each cell (a pole thinner than a cell, or an edge, keeps its true depth), or ``"mean"``, the
     network's own area-averaged input (edges blend with the background behind them)."""
-    shadow_m: float = 0.3
+    shadow_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """Each remembered point also stands for what lies behind it: a second point this far (m)
     further along its ray, so the unseen back of a pipe or the far side of a trunk counts as solid
     when the vehicle moves round or over it. 0 = the seen surfaces only."""
@@ -117,7 +123,7 @@ class ShieldConfig:
     """Also keep ``clearance_m`` from the floor plane when its height is known (the sim: each
     world's floor; the daemon: world z = 0, as the supervisor's altitude band already assumes).
     The camera cannot see the floor below the vehicle; descents onto it were what crashed."""
-    camera_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    camera_offset_m: tuple[_OffsetM, _OffsetM, _OffsetM] = (0.0, 0.0, 0.0)
     """Where the depth camera sits relative to the odometry's body origin, in the heading frame
     (m: forward, left, up). The sim's camera is at the origin; a D435 on a real airframe is
     typically ~0.1 m forward. Remembered points and views are placed from the camera, not the

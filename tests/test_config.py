@@ -1,5 +1,7 @@
 """Typed config loading: errors name file, key path and value."""
 
+import random
+
 import pytest
 
 from quadnav_onboard.config import ConfigError, PlannerConfig, load_yaml_config, parse_config
@@ -52,7 +54,46 @@ def test_missing_file(tmp_path):
         load_yaml_config(PlannerConfig, tmp_path / "absent.yaml")
 
 
-def test_empty_file_gives_defaults(tmp_path):
+@pytest.mark.parametrize("text", ["", "# only a comment\n", "\n\n"])
+def test_an_empty_file_is_refused_not_read_as_the_defaults(tmp_path, text):
+    """A file with no document would silently stand for every default: refused, naming the file;
+    an explicit ``{}`` still asks for the defaults."""
     f = tmp_path / "e.yaml"
-    f.write_text("")
+    f.write_text(text)
+    with pytest.raises(ConfigError, match=r"e\.yaml: the file is empty"):
+        load_yaml_config(PlannerConfig, f)
+    f.write_text("{}\n")
     assert load_yaml_config(PlannerConfig, f) == PlannerConfig()
+
+
+def test_random_bytes_are_a_config_error_naming_the_file(tmp_path):
+    """A binary file (random bytes) is refused as not UTF-8 text, not a UnicodeDecodeError."""
+    f = tmp_path / "junk.yaml"
+    f.write_bytes(random.Random(0).randbytes(4096))
+    with pytest.raises(ConfigError, match=r"junk\.yaml: not a UTF-8 text file"):
+        load_yaml_config(PlannerConfig, f)
+
+
+@pytest.mark.parametrize(
+    ("text", "key", "value"),
+    [
+        ("primitives: {scale_m: .nan}\n", "primitives.scale_m", "nan"),
+        ("primitives: {duration_s: .inf}\n", "primitives.duration_s", "inf"),
+        ("preprocess: {max_range_m: .nan}\n", "preprocess.max_range_m", "nan"),
+        ("reward: {r_upper: -.inf}\n", "reward.r_upper", "-inf"),
+    ],
+)
+def test_nan_and_infinity_are_reported_as_such(tmp_path, text, key, value):
+    """NaN is not "less than or equal to 5": the error says the value is not a finite number."""
+    f = tmp_path / "p.yaml"
+    f.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_yaml_config(PlannerConfig, f)
+    assert f"key '{key}': bad value {value}: Input should be a finite number" in str(info.value)
+
+
+def test_preprocessing_range_must_be_ordered(tmp_path):
+    f = tmp_path / "p.yaml"
+    f.write_text("preprocess: {min_range_m: 5.0, max_range_m: 4.0}\n")
+    with pytest.raises(ConfigError, match=r"min_range_m 5\.0 must be below max_range_m 4\.0"):
+        load_yaml_config(PlannerConfig, f)

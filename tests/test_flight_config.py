@@ -40,8 +40,12 @@ def test_defaults_construct_without_a_file() -> None:
         ("vehicle: {urll: x}\n", ["vehicle.urll", "unknown key"]),
         ("depth: {kind: kinect}\n", ["depth.kind", "kinect"]),
         (
-            "odometry: {rotation_world_from_mocap: [[1,0,0],[0,1,0],[0,0,2]]}\n",
+            "odometry: {rotation_world_from_mocap: [[1,0,0],[0,1,0],[0,0,-1]]}\n",
             ["odometry", "not a rotation"],
+        ),
+        (
+            "odometry: {rotation_world_from_mocap: [[1,0,0],[0,1,0],[0,0,2]]}\n",
+            ["odometry.rotation_world_from_mocap.2.2", "2", "less than or equal to 1"],
         ),
         ("mission: {waypoints_m: [[0, 0, 1]]}\n", ["mission.waypoints_m", "2 waypoints"]),
         ("mission: {speed_m_s: 1.0\n", ["malformed YAML"]),
@@ -74,3 +78,96 @@ def test_the_preparation_window_spans_at_least_one_and_a_half_frames() -> None:
     assert DepthSourceConfig().preparation_window_s() == 0.1
     assert DepthSourceConfig(fps=6.0).preparation_window_s() == 0.25
     assert DepthSourceConfig(prepare_within_s=None).preparation_window_s() is None
+
+
+def _lab_config_with(tmp_path: Path, section: str, key: str, value: object) -> Path:
+    """config/flight.yaml with one key of one section replaced, written to a temporary file."""
+    import yaml
+
+    data = yaml.safe_load((REPO / "config" / "flight.yaml").read_text(encoding="utf-8"))
+    data[section] = dict(data.get(section) or {}, **{key: value})
+    path = tmp_path / "flight.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
+
+
+_LIMITS = [
+    ("safety", k)
+    for k in (
+        "stale_depth_s", "stale_odometry_s", "link_timeout_s", "inference_budget_s", "max_deviation_m",
+        "altitude_ceiling_m", "hold_before_land_s", "land_timeout_s",
+    )
+] + [("mission", k) for k in ("start_tolerance_m", "takeoff_timeout_s", "goal_radius_m")] + [
+    ("vehicle", k) for k in ("connect_timeout_s", "command_timeout_s", "health_timeout_s")
+] + [("depth", "prepare_within_s")]
+
+
+@pytest.mark.parametrize(("section", "key"), _LIMITS)
+@pytest.mark.parametrize("value", [float("inf"), 1e12])
+def test_an_infinite_or_absurd_limit_is_refused(tmp_path: Path, section: str, key: str, value: float) -> None:
+    """A limit of .inf or 1e12 would switch its check off (the daemon armed and flew): refused,
+    naming the file, the key and the value."""
+    path = _lab_config_with(tmp_path, section, key, value)
+    with pytest.raises(ConfigError) as info:
+        load_flight_config(path)
+    assert f"{path}: key '{section}.{key}': bad value {value!r}" in str(info.value)
+
+
+def test_nan_is_reported_as_nan_not_as_out_of_range(tmp_path: Path) -> None:
+    path = _lab_config_with(tmp_path, "mission", "speed_m_s", float("nan"))
+    with pytest.raises(ConfigError) as info:
+        load_flight_config(path)
+    assert "key 'mission.speed_m_s': bad value nan: Input should be a finite number" in str(info.value)
+    assert "less than" not in str(info.value)
+
+
+def test_a_nan_mocap_origin_is_refused(tmp_path: Path) -> None:
+    path = _lab_config_with(tmp_path, "odometry", "translation_world_m", [float("nan")] * 3)
+    with pytest.raises(ConfigError, match=r"key 'odometry\.translation_world_m\.0': bad value nan"):
+        load_flight_config(path)
+
+
+@pytest.mark.parametrize("radius", [8.0, 7.9, 7.8])
+def test_a_goal_radius_reaching_back_to_the_start_is_refused(tmp_path: Path, radius: float) -> None:
+    """The lab path is 8 m long and the start tolerance 0.2 m: a goal radius of 7.8 m or more would
+    be met at the start ("goal reached after 0 steps"), so it is refused naming file, key and value."""
+    path = _lab_config_with(tmp_path, "mission", "goal_radius_m", radius)
+    with pytest.raises(ConfigError) as info:
+        load_flight_config(path)
+    msg = str(info.value)
+    assert f"{path}: key 'mission.goal_radius_m': bad value {radius!r}" in msg
+    assert "start-to-goal distance 8 m" in msg
+
+
+def test_a_goal_radius_short_of_the_start_is_accepted(tmp_path: Path) -> None:
+    path = _lab_config_with(tmp_path, "mission", "goal_radius_m", 7.5)
+    assert load_flight_config(path).mission.goal_radius_m == 7.5
+
+
+@pytest.mark.parametrize(
+    ("waypoints", "needles"),
+    [
+        ([[0, 0, 1.2], [8, 0, 3.5]], ["mission.waypoints_m[1] [8.0, 0.0, 3.5]", "geofence"]),
+        ([[0, 0, 1.2], [8, 0, 0.3]], ["mission.waypoints_m[1] [8.0, 0.0, 0.3]", "altitude band"]),
+        ([[0, 0, 1.2], [0, 0, 1.2], [8, 0, 1.2]], ["mission.waypoints_m", "[0] and [1] are both"]),
+        ([[0, 0, 1.2], [8, 0, 1e9]], ["mission.waypoints_m.1.2", "1000000000.0"]),
+    ],
+)
+def test_bad_waypoints_name_the_file_the_key_and_the_waypoint(
+    tmp_path: Path, waypoints: list, needles: list[str]
+) -> None:
+    path = _lab_config_with(tmp_path, "mission", "waypoints_m", waypoints)
+    with pytest.raises(ConfigError) as info:
+        load_flight_config(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: ")
+    for needle in needles:
+        assert needle in msg
+
+
+def test_an_empty_flight_file_is_refused(tmp_path: Path) -> None:
+    """An empty file made a dry run fly on the dataclass defaults instead of the sim config."""
+    path = tmp_path / "empty.yaml"
+    path.write_text("")
+    with pytest.raises(ConfigError, match=r"empty\.yaml: the file is empty"):
+        load_flight_config(path, require_waypoints=False)

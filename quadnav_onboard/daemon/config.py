@@ -4,6 +4,11 @@ Every section is a frozen dataclass with a docstring per field; YAML files are v
 :func:`quadnav_onboard.config.parse_config`, so an unknown key, a wrong type or an out-of-range
 value raises :class:`quadnav_onboard.config.ConfigError` naming the file, the key path and the value.
 Positions are world frame (x forward, y left, z up), metres.
+
+Every numeric field is finite and lies in the range its docstring states (NaN, ±inf and absurd
+values would switch a check off or fake an outcome); :func:`load_flight_config` also checks what
+one field cannot: the path inside the geofence and the altitude band, and a goal radius the path
+leaves room for (:func:`check_mission_path`).
 """
 
 from __future__ import annotations
@@ -16,7 +21,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import pydantic
 
-from quadnav_onboard.config import ConfigError, PrimitiveConfig, load_yaml, parse_config
+from quadnav_onboard.config import CONFIG_DICT, ConfigError, PrimitiveConfig, load_yaml_mapping, parse_config
+from quadnav_onboard.path import RoughPath
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.reward import RewardParams
 from quadnav_onboard.shield import ShieldConfig
@@ -29,11 +35,18 @@ __all__ = [
     "RecordConfig",
     "SafetyConfig",
     "VehicleConfig",
+    "check_mission_path",
     "default_sim_config",
     "load_flight_config",
 ]
 
-Vec3 = tuple[float, float, float]
+CoordM = Annotated[float, pydantic.Field(ge=-10_000, le=10_000)]
+"""A world coordinate (m): within 10 km of the origin; 0 and negative values are places like any other."""
+AltitudeM = Annotated[float, pydantic.Field(ge=-100, le=500)]
+"""A world height (m): in [-100, 500]."""
+Vec3 = tuple[CoordM, CoordM, CoordM]
+_RotationEntry = Annotated[float, pydantic.Field(ge=-1, le=1)]
+_RotationRow = tuple[_RotationEntry, _RotationEntry, _RotationEntry]
 _IDENTITY: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
@@ -41,23 +54,27 @@ _IDENTITY: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.
 class MissionConfig:
     """The rough path, the moving setpoint and when a flight is done."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
     waypoints_m: tuple[Vec3, ...] | None = None
-    """Rough path (world, m), >= 2 waypoints; the first is where the vehicle takes off to.
+    """Rough path (world, m, each coordinate in [-10 000, 10 000]), >= 2 distinct waypoints, inside
+    the geofence and the altitude band; the first is where the vehicle takes off to.
     ``None`` only in a dry run, which takes the world file's path."""
     speed_m_s: Annotated[float, pydantic.Field(gt=0, le=5)] = 1.0
-    """Speed (m/s) of the moving setpoint along the path (paper: 1 in sim, 0.5 real)."""
+    """Speed (m/s) of the moving setpoint along the path, in (0, 5] (paper: 1 in sim, 0.5 real)."""
     max_steps: Annotated[int, pydantic.Field(ge=1, le=10_000)] = 60
-    """Step limit: the flight stops (hold) after this many primitives (paper's real flights: 30)."""
-    goal_radius_m: Annotated[float, pydantic.Field(gt=0)] = 1.0
-    """The goal is reached within this distance (m) of the last waypoint (or at full progress)."""
+    """Step limit, in [1, 10 000]: the flight stops (hold) after this many primitives (paper's real
+    flights: 30)."""
+    goal_radius_m: Annotated[float, pydantic.Field(gt=0, le=10)] = 1.0
+    """The goal is reached within this distance (m) of the last waypoint (or at full progress); in
+    (0, 10], and with ``start_tolerance_m`` below the start-to-goal distance, so that the goal cannot
+    be reached at the start."""
     takeoff_speed_m_s: Annotated[float, pydantic.Field(gt=0, le=3)] = 0.5
-    """Speed (m/s) of the setpoint ramp from the ground to the path start."""
-    start_tolerance_m: Annotated[float, pydantic.Field(gt=0)] = 0.3
-    """The mission begins once the vehicle is this close (m) to the path start."""
-    takeoff_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 60.0
-    """Give up (safe abort) if the path start is not reached within this time (s)."""
+    """Speed (m/s) of the setpoint ramp from the ground to the path start, in (0, 3]."""
+    start_tolerance_m: Annotated[float, pydantic.Field(gt=0, le=2)] = 0.3
+    """The mission begins once the vehicle is this close (m) to the path start; in (0, 2]."""
+    takeoff_timeout_s: Annotated[float, pydantic.Field(gt=0, le=600)] = 60.0
+    """Give up (safe abort) if the path start is not reached within this time (s); in (0, 600]."""
     land_at_goal: bool = True
     """At the goal: hold, then land (True) or stay holding (False)."""
 
@@ -66,36 +83,37 @@ class MissionConfig:
 class SafetyConfig:
     """The supervisor's limits and its response ladder (hold -> land -> optionally disarm)."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
-    max_deviation_m: Annotated[float, pydantic.Field(gt=0)] = 5.0
-    """Stop when farther than this (m) from the rough path (paper: 5 m in sim)."""
+    max_deviation_m: Annotated[float, pydantic.Field(gt=0, le=50)] = 5.0
+    """Stop when farther than this (m) from the rough path, in (0, 50] (paper: 5 m in sim)."""
     geofence_min_m: Vec3 = (-100.0, -100.0, -1.0)
-    """Lower corner (world, m) of the allowed box."""
+    """Lower corner (world, m, each in [-10 000, 10 000]) of the allowed box."""
     geofence_max_m: Vec3 = (100.0, 100.0, 30.0)
-    """Upper corner (world, m) of the allowed box."""
-    altitude_floor_m: float = 0.3
-    """Lowest allowed altitude (world z, m) during the mission (not during take-off or landing)."""
-    altitude_ceiling_m: float = 10.0
-    """Highest allowed altitude (world z, m)."""
-    stale_depth_s: Annotated[float, pydantic.Field(gt=0)] = 0.3
-    """Stop when the newest depth frame is older than this (s)."""
-    stale_odometry_s: Annotated[float, pydantic.Field(gt=0)] = 0.1
-    """Stop when the newest odometry sample is older than this (s)."""
-    link_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 0.5
-    """Stop when nothing has been heard from the vehicle for this long (s)."""
-    inference_budget_s: Annotated[float, pydantic.Field(gt=0)] = 0.25
-    """Stop when one decision (preprocess + network) takes longer than this (s)."""
-    check_rate_hz: Annotated[float, pydantic.Field(gt=0, le=1000)] = 50.0
-    """Rate (Hz) of the in-flight checks; 50 Hz reacts to stale input within 20 ms."""
-    hold_before_land_s: Annotated[float, pydantic.Field(ge=0)] = 2.0
-    """After an abort: hold this long (s) before commanding land."""
+    """Upper corner (world, m, each in [-10 000, 10 000], above the lower one) of the allowed box."""
+    altitude_floor_m: AltitudeM = 0.3
+    """Lowest allowed altitude (world z, m, in [-100, 500]) during the mission (not during take-off
+    or landing)."""
+    altitude_ceiling_m: AltitudeM = 10.0
+    """Highest allowed altitude (world z, m, in [-100, 500], above the floor)."""
+    stale_depth_s: Annotated[float, pydantic.Field(gt=0, le=2)] = 0.3
+    """Stop when the newest depth frame is older than this (s); in (0, 2]."""
+    stale_odometry_s: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.1
+    """Stop when the newest odometry sample is older than this (s); in (0, 1]."""
+    link_timeout_s: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.5
+    """Stop when nothing has been heard from the vehicle for this long (s); in (0, 5]."""
+    inference_budget_s: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.25
+    """Stop when one decision (preprocess + network) takes longer than this (s); in (0, 1]."""
+    check_rate_hz: Annotated[float, pydantic.Field(ge=1, le=1000)] = 50.0
+    """Rate (Hz) of the in-flight checks, in [1, 1000]; 50 Hz reacts to stale input within 20 ms."""
+    hold_before_land_s: Annotated[float, pydantic.Field(ge=0, le=60)] = 2.0
+    """After an abort: hold this long (s) before commanding land; in [0, 60] (0: land at once)."""
     land_on_abort: bool = True
     """After an abort: land once held (True), or keep holding (False)."""
     disarm_on_abort: bool = False
     """After an abort: disarm once landed (PX4 also auto-disarms after touchdown)."""
-    land_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 30.0
-    """How long (s) to wait for touchdown after commanding land."""
+    land_timeout_s: Annotated[float, pydantic.Field(gt=0, le=300)] = 30.0
+    """How long (s) to wait for touchdown after commanding land; in (0, 300]."""
 
     def __post_init__(self) -> None:
         if not all(lo < hi for lo, hi in zip(self.geofence_min_m, self.geofence_max_m, strict=True)):
@@ -108,46 +126,50 @@ class SafetyConfig:
 class VehicleConfig:
     """The MAVLink link to PX4 through MAVSDK."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
     url: str = "serial:///dev/ttyACM0:921600"
     """MAVSDK connection URL: serial:///dev/ttyX:BAUD, udpin://0.0.0.0:14540, ..."""
-    connect_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 15.0
-    """How long (s) to wait for the autopilot to appear."""
-    command_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 5.0
-    """How long (s) any single command (arm, mode switch, ...) may take."""
-    health_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 15.0
-    """How long (s) preflight waits for PX4 to report local position OK."""
+    connect_timeout_s: Annotated[float, pydantic.Field(gt=0, le=300)] = 15.0
+    """How long (s) to wait for the autopilot to appear; in (0, 300]."""
+    command_timeout_s: Annotated[float, pydantic.Field(gt=0, le=60)] = 5.0
+    """How long (s) any single command (arm, mode switch, ...) may take; in (0, 60]."""
+    health_timeout_s: Annotated[float, pydantic.Field(gt=0, le=600)] = 15.0
+    """How long (s) preflight waits for PX4 to report local position OK; in (0, 600]."""
     setpoint_rate_hz: Annotated[float, pydantic.Field(ge=2, le=100)] = 20.0
-    """Rate (Hz) at which the daemon itself streams position setpoints (PX4 needs >= 2)."""
+    """Rate (Hz) at which the daemon itself streams position setpoints, in [2, 100] (PX4 needs >= 2)."""
 
 
 @dataclass(frozen=True)
 class DepthSourceConfig:
     """Where depth frames come from."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
-    kind: Literal["uvc", "replay", "sim"] = "uvc"
-    """uvc: RealSense over V4L2; replay: a folder of 16-bit PNGs; sim: the sim harness camera."""
+    kind: Literal["uvc", "replay", "socket", "sim"] = "uvc"
+    """uvc: RealSense over V4L2; replay: a folder of 16-bit PNGs; socket: frames from a camera
+    process over a Unix socket (the dry run's sim camera, or a driver of your own); sim: the sim
+    harness camera inside the daemon's process (tests only)."""
     device: str = "/dev/video0"
     """uvc: V4L2 device path (/dev/videoN) or index ("2")."""
-    width: Annotated[int, pydantic.Field(ge=32)] = 424
-    """Frame width (px)."""
-    height: Annotated[int, pydantic.Field(ge=32)] = 240
-    """Frame height (px)."""
-    fps: Annotated[float, pydantic.Field(gt=0, le=300)] = 30.0
-    """Frame rate (Hz) requested from the camera, or the replay rate."""
+    socket_path: str | None = None
+    """socket: path of the camera process's Unix socket (the dry run fills it in)."""
+    width: Annotated[int, pydantic.Field(ge=32, le=4096)] = 424
+    """Frame width (px), in [32, 4096]."""
+    height: Annotated[int, pydantic.Field(ge=32, le=4096)] = 240
+    """Frame height (px), in [32, 4096]."""
+    fps: Annotated[float, pydantic.Field(ge=1, le=300)] = 30.0
+    """Frame rate (Hz) requested from the camera, or the replay rate; in [1, 300]."""
     folder: str | None = None
     """replay: folder of uint16 PNG files (mm), played in name order."""
     loop: bool = True
     """replay: start over at the end of the folder."""
-    prepare_within_s: Annotated[float, pydantic.Field(gt=0)] | None = 0.1
-    """In the mission, fully prepare (preprocess, depth lane, filter verdict) only the frames that
-    arrive within this many seconds before the next step boundary; earlier ones are only checked
-    (a bad frame still stops the flight on arrival). One frame per step is used, so this saves
-    most of the work at 30 fps. Never less than 1.5 frame periods (``preparation_window_s``), so a
-    frame normally falls inside it. null: prepare every frame."""
+    prepare_within_s: Annotated[float, pydantic.Field(gt=0, le=10)] | None = 0.1
+    """In (0, 10] s, or null. In the mission, fully prepare (preprocess, depth lane, filter verdict)
+    only the frames that arrive within this many seconds before the next step boundary; earlier
+    ones are only checked (a bad frame still stops the flight on arrival). One frame per step is
+    used, so this saves most of the work at 30 fps. Never less than 1.5 frame periods
+    (``preparation_window_s``), so a frame normally falls inside it. null: prepare every frame."""
 
     def preparation_window_s(self) -> float | None:
         """The window in effect: ``prepare_within_s``, at least 1.5 frame periods at ``fps``."""
@@ -160,7 +182,7 @@ class DepthSourceConfig:
 class OdometrySourceConfig:
     """Where the vehicle pose comes from."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
     kind: Literal["mocap", "px4", "sim"] = "mocap"
     """mocap: the motioncapture library; px4: PX4's own estimate over MAVSDK; sim: sim harness."""
@@ -168,17 +190,19 @@ class OdometrySourceConfig:
     """mocap: motioncapture system (optitrack, vicon, qualisys, vrpn, mock, ...)."""
     host: str = "192.168.1.100"
     """mocap: host name or address of the mocap server."""
+    port_command: Annotated[int, pydantic.Field(ge=1, le=65535)] | None = None
+    """mocap, optitrack: NatNet command port in [1, 65535]; null: Motive's default 1510."""
     rigid_body: str = "quad"
     """mocap: name of the vehicle's rigid body."""
-    rotation_world_from_mocap: tuple[Vec3, Vec3, Vec3] = _IDENTITY
-    """mocap: rotation matrix (rows) taking mocap-frame vectors into the world frame. OptiTrack's
-    y-up frame: ((1, 0, 0), (0, 0, -1), (0, 1, 0))."""
+    rotation_world_from_mocap: tuple[_RotationRow, _RotationRow, _RotationRow] = _IDENTITY
+    """mocap: rotation matrix (rows, entries in [-1, 1]) taking mocap-frame vectors into the world
+    frame. OptiTrack's y-up frame: ((1, 0, 0), (0, 0, -1), (0, 1, 0))."""
     translation_world_m: Vec3 = (0.0, 0.0, 0.0)
-    """mocap: position (m, world) of the mocap origin."""
+    """mocap: position (m, world, each in [-10 000, 10 000]) of the mocap origin."""
     forward_to_px4: bool = False
     """mocap: also send each pose to PX4 as a vision position estimate (EKF2 external vision)."""
     forward_rate_hz: Annotated[float, pydantic.Field(ge=30, le=200)] = 50.0
-    """mocap: rate limit (Hz) of the forwarding to PX4 (>= 30 as EKF2 expects)."""
+    """mocap: rate limit (Hz) of the forwarding to PX4, in [30, 200] (>= 30 as EKF2 expects)."""
 
     def __post_init__(self) -> None:
         r = np.asarray(self.rotation_world_from_mocap, dtype=np.float64)
@@ -190,14 +214,14 @@ class OdometrySourceConfig:
 class RecordConfig:
     """The flight record (MCAP, see quadnav_onboard.record)."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
     enabled: bool = True
     """Write a flight record."""
     directory: str = "records"
     """Folder for the records (created if missing); one file per flight."""
-    depth_decimation: Annotated[int, pydantic.Field(ge=1)] = 5
-    """Record every N-th raw depth frame (network inputs are always recorded)."""
+    depth_decimation: Annotated[int, pydantic.Field(ge=1, le=1000)] = 5
+    """Record every N-th raw depth frame, N in [1, 1000] (network inputs are always recorded)."""
     writer: Literal["process", "thread"] = "process"
     """Where the record is encoded and written: a child process (keeps JSON, compression and disk
     work off the flight process's GIL) or a thread of the flight process."""
@@ -207,7 +231,7 @@ class RecordConfig:
 class FlightConfig:
     """Everything one flight needs."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = CONFIG_DICT  # unknown keys, NaN and ±inf are errors
 
     model_path: str | None = None
     """Checkpoint to fly; None = the bundled quadnav_onboard/models/default.pt."""
@@ -237,15 +261,53 @@ class FlightConfig:
 
 
 def load_flight_config(path: str | Path, *, require_waypoints: bool = True) -> FlightConfig:
-    """Load and validate a flight YAML file; raises ConfigError naming file, key and value."""
-    cfg = parse_config(FlightConfig, load_yaml(path), source=str(path))
-    if require_waypoints and cfg.mission.waypoints_m is None:
+    """Load and validate a flight YAML file; raises ConfigError naming file, key and value.
+
+    An empty file is refused (it would fly on the dataclass defaults without a word); waypoints, when
+    given, are checked against the rest of the file with :func:`check_mission_path`."""
+    cfg = parse_config(FlightConfig, load_yaml_mapping(path), source=str(path))
+    wps = cfg.mission.waypoints_m
+    if require_waypoints and wps is None:
         raise ConfigError(f"{path}: key 'mission.waypoints_m': required for a flight (got None)")
-    if cfg.mission.waypoints_m is not None and len(cfg.mission.waypoints_m) < 2:
-        raise ConfigError(
-            f"{path}: key 'mission.waypoints_m': bad value {cfg.mission.waypoints_m!r}: need >= 2 waypoints"
-        )
+    if wps is not None:
+        if len(wps) < 2:
+            raise ConfigError(f"{path}: key 'mission.waypoints_m': bad value {wps!r}: need >= 2 waypoints")
+        try:
+            rough = RoughPath(np.asarray(wps, dtype=np.float64), cfg.mission.speed_m_s)
+        except ValueError as exc:
+            raise ConfigError(f"{path}: key 'mission.waypoints_m': bad value {wps!r}: {exc}") from None
+        check_mission_path(cfg, rough, str(path), "mission.waypoints_m")
     return cfg
+
+
+def check_mission_path(cfg: FlightConfig, path: RoughPath, source: str, path_source: str) -> None:
+    """Refuse a mission the path flown does not fit, naming the file, the key and the value: a
+    waypoint outside the geofence or the altitude band (the supervisor would stop the flight on
+    it), or a goal radius that, with the start tolerance, reaches back to the start (the goal would
+    be "reached" before the first step). ``path_source`` says where the path came from (the key
+    ``mission.waypoints_m``, or a world file)."""
+    s, m = cfg.safety, cfg.mission
+    lo, hi = np.asarray(s.geofence_min_m), np.asarray(s.geofence_max_m)
+    for k, wp in enumerate(path.waypoints_m):
+        where = f"{path_source}[{k}] {wp.tolist()}"
+        if np.any(wp < lo) or np.any(wp > hi):
+            raise ConfigError(
+                f"{source}: {where}: outside the geofence (keys 'safety.geofence_min_m' "
+                f"{list(s.geofence_min_m)}, 'safety.geofence_max_m' {list(s.geofence_max_m)})"
+            )
+        if not s.altitude_floor_m <= wp[2] <= s.altitude_ceiling_m:
+            raise ConfigError(
+                f"{source}: {where}: outside the altitude band (keys 'safety.altitude_floor_m' "
+                f"{s.altitude_floor_m}, 'safety.altitude_ceiling_m' {s.altitude_ceiling_m})"
+            )
+    reach_m = float(np.linalg.norm(path.goal_m - path.start_m))
+    if m.goal_radius_m + m.start_tolerance_m >= reach_m:
+        raise ConfigError(
+            f"{source}: key 'mission.goal_radius_m': bad value {m.goal_radius_m!r}: with "
+            f"'mission.start_tolerance_m' {m.start_tolerance_m} it must stay below the start-to-goal "
+            f"distance {reach_m:.3g} m of {path_source} (path length {path.length_m:.3g} m), or the goal "
+            "is reached at the start"
+        )
 
 
 def default_sim_config() -> FlightConfig:
