@@ -92,6 +92,9 @@ def _format_errors(source: str, err: pydantic.ValidationError) -> str:
             lines.append(f"{source}: key '{loc}': required but missing")
         elif e["type"] in ("unexpected_keyword_argument", "extra_forbidden"):
             lines.append(f"{source}: key '{loc}': unknown key (value {value!r})")
+        elif e["type"] == "value_error" and isinstance(value, Mapping):  # a check across keys
+            reason = str(e["msg"]).removeprefix("Value error, ")
+            lines.append(f"{source}: key '{loc}': {reason}")
         else:
             lines.append(f"{source}: key '{loc}': bad value {value!r}: {e['msg']}")
     return "\n".join(lines)

@@ -59,7 +59,7 @@ class RewardParams:
 
     def __post_init__(self) -> None:
         if not self.dd_lower_m < self.dd_upper_m:
-            raise ValueError("dd_lower_m must be < dd_upper_m")
+            raise ValueError(f"dd_lower_m {self.dd_lower_m!r} must be < dd_upper_m {self.dd_upper_m!r}")
         if not self.d_floor_m > 0 or not self.max_deviation_m > 0:
             raise ValueError("d_floor_m and max_deviation_m must be > 0")
 

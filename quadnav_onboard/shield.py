@@ -70,47 +70,52 @@ class ShieldConfig:
     """Veto primitives whose swept path comes closer than ``clearance_m`` to a seen obstacle."""
     clearance_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.5
     """Least allowed distance (m) from the primitive's predicted path to any remembered depth point
-    (the quad's 0.3 m radius plus a margin for depth noise and what the prediction misses)."""
+    (the quad's 0.3 m radius plus a margin for depth noise and what the prediction misses).
+    Range: (0, 5], below ``search_radius_m``."""
     memory_steps: Annotated[int, pydantic.Field(ge=1, le=64)] = 4
     """Decisions whose depth points are remembered (the current one included), counted at the
     primitive scale the model was trained with. Flown with shorter primitives, the filter keeps
     proportionally more decisions, so it remembers the same distance of travel
-    (:func:`shield_at_scale`): 4 at 1 m is 8 at 0.5 m."""
+    (:func:`shield_at_scale`): 4 at 1 m is 8 at 0.5 m. Range: [1, 64]."""
     samples: Annotated[int, pydantic.Field(ge=1, le=64)] = 8
-    """Points sampled along each primitive (its start excluded)."""
+    """Points sampled along each primitive (its start excluded). Range: [1, 64]."""
     lookahead_s: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
-    """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot)."""
+    """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot).
+    Range: [0, 5]."""
     min_travel_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """A decision taken less than this far (m) from the last remembered one replaces it instead of
-    pushing the oldest out: hovering in place does not forget what was seen on the way."""
+    pushing the oldest out: hovering in place does not forget what was seen on the way. Range: [0, 5]."""
     track_omega_rad_s: Annotated[float, pydantic.Field(gt=0, le=100)] = 6.0
     """Natural frequency (rad/s) of the position loop assumed when predicting the flown path. This
     is the daemon's model of PX4, kept apart from the simulated vehicle (``sim_harness.quad``) on
-    purpose; with these defaults the two agree within 3 cm (tests/test_shield.py)."""
+    purpose; with these defaults the two agree within 3 cm (tests/test_shield.py). Range: (0, 100]."""
     track_accel_m_s2: Annotated[float, pydantic.Field(gt=0, le=50)] = 4.0
-    """Acceleration limit (m/s^2) of that position loop (PX4's MPC_ACC_HOR_MAX-like)."""
+    """Acceleration limit (m/s^2) of that position loop (PX4's MPC_ACC_HOR_MAX-like). Range: (0, 50]."""
     track_dt_s: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.05
     """Largest integration step (s) of the prediction (the step divides the primitive evenly
-    between the samples: 1/24 s for 1 s primitives and 8 samples)."""
+    between the samples: 1/24 s for 1 s primitives and 8 samples). Range: (0, 1]."""
     require_seen: bool = False
     """Also veto primitives that fly into space no remembered view saw to be free (beside or below
     the camera's field of view, behind obstacles). Safer in principle, but the planner then often
     hovers in place until the step limit (docs/results.md); off by default."""
     seen_level_tol_m: Annotated[float, pydantic.Field(ge=0, le=10)] | None = None
     """Without ``require_seen``: samples more than this (m) above or below the vehicle must still
-    lie in space a view saw free (climbs and descents into the unseen floor or ceiling); None = off."""
+    lie in space a view saw free (climbs and descents into the unseen floor or ceiling); None = off.
+    Range: [0, 10] or None."""
     seen_margin_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
-    """A sample counts as seen free when it lies this far (m) in front of the measured depth."""
+    """A sample counts as seen free when it lies this far (m) in front of the measured depth.
+    Range: [0, 5]."""
     near_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.4
-    """Samples within this distance (m) of the vehicle's current position count as free."""
+    """Samples within this distance (m) of the vehicle's current position count as free. Range: [0, 5]."""
     hfov_deg: Annotated[float, pydantic.Field(gt=0, lt=180)] = 87.0
-    """Horizontal field of view (deg) of the depth camera the inputs come from (D435)."""
+    """Horizontal field of view (deg) of the depth camera the inputs come from (D435). Range: (0, 180)."""
     vfov_deg: Annotated[float, pydantic.Field(gt=0, lt=180)] = 58.0
-    """Vertical field of view (deg) of the depth camera."""
+    """Vertical field of view (deg) of the depth camera. Range: (0, 180)."""
     max_range_m: Annotated[float, pydantic.Field(gt=0, le=65)] = 10.0
-    """Depth (m) of an input value of 1.0 (the preprocessing's max range): 'nothing seen'."""
+    """Depth (m) of an input value of 1.0 (the preprocessing's max range): 'nothing seen'. Range: (0, 65]."""
     search_radius_m: Annotated[float, pydantic.Field(gt=0, le=20)] = 1.5
-    """Clearances are capped at this distance (m); points farther from every sample are ignored."""
+    """Clearances are capped at this distance (m); points farther from every sample are ignored.
+    Range: (0, 20]."""
     depth_pooling: str = "min"
     """How the filter's 32x32 depth comes from the camera frame: ``"min"``, the nearest surface in
     each cell (a pole thinner than a cell, or an edge, keeps its true depth), or ``"mean"``, the
@@ -118,7 +123,8 @@ class ShieldConfig:
     shadow_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """Each remembered point also stands for what lies behind it: a second point this far (m)
     further along its ray, so the unseen back of a pipe or the far side of a trunk counts as solid
-    when the vehicle moves round or over it. 0 = the seen surfaces only."""
+    when the vehicle moves round or over it. 0 = the seen surfaces only.
+    Range: [0, 5], below ``search_radius_m``."""
     known_floor: bool = True
     """Also keep ``clearance_m`` from the floor plane when its height is known (the sim: each
     world's floor; the daemon: world z = 0, as the supervisor's altitude band already assumes).
@@ -127,11 +133,15 @@ class ShieldConfig:
     """Where the depth camera sits relative to the odometry's body origin, in the heading frame
     (m: forward, left, up). The sim's camera is at the origin; a D435 on a real airframe is
     typically ~0.1 m forward. Remembered points and views are placed from the camera, not the
-    body origin (the network itself was trained with the camera at the origin)."""
+    body origin (the network itself was trained with the camera at the origin).
+    Range: [-1, 1] m per axis."""
 
     def __post_init__(self) -> None:
         if not self.clearance_m > 0 or not self.search_radius_m > self.clearance_m:
-            raise ValueError("need 0 < clearance_m < search_radius_m")
+            raise ValueError(
+                f"need 0 < clearance_m < search_radius_m, got clearance_m {self.clearance_m!r} and "
+                f"search_radius_m {self.search_radius_m!r}"
+            )
         if self.memory_steps < 1 or self.samples < 1 or self.lookahead_s < 0:
             raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
         if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
@@ -139,7 +149,10 @@ class ShieldConfig:
         if self.depth_pooling not in ("min", "mean"):
             raise ValueError(f"depth_pooling must be 'min' or 'mean', got {self.depth_pooling!r}")
         if not (0 <= self.shadow_m < self.search_radius_m):
-            raise ValueError(f"need 0 <= shadow_m < search_radius_m, got {self.shadow_m}")
+            raise ValueError(
+                f"need 0 <= shadow_m < search_radius_m, got shadow_m {self.shadow_m!r} and "
+                f"search_radius_m {self.search_radius_m!r}"
+            )
         if len(self.camera_offset_m) != 3 or not all(math.isfinite(v) for v in self.camera_offset_m):
             raise ValueError(f"camera_offset_m must be 3 finite numbers, got {self.camera_offset_m!r}")
 

@@ -70,15 +70,15 @@ class TriggerTimeoutError(TriggerError, TimeoutError):
 class MissionTriggerConfig:
     """When the mission may start, once preflight has passed."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    __pydantic_config__ = {"extra": "forbid", "allow_inf_nan": False}  # unknown keys, NaN, ±inf: errors
 
     mode: Literal["auto", "socket", "offboard_switch"] = "offboard_switch"
     """auto: at once (sim only); socket: a ``GO`` line on ``socket_path``; offboard_switch: the
     pilot switches PX4 to OFFBOARD."""
     socket_path: Annotated[str, pydantic.Field(min_length=2, max_length=107)] = DEFAULT_SOCKET_PATH
     """socket: absolute path of the UNIX socket (created mode 0660, removed after the go)."""
-    client_timeout_s: Annotated[float, pydantic.Field(gt=0)] = 30.0
-    """socket: a client that sends no complete line for this long (s) is disconnected."""
+    client_timeout_s: Annotated[float, pydantic.Field(gt=0, le=3600)] = 30.0
+    """socket: a client that sends no complete line for this long (s), in (0, 3600], is disconnected."""
 
     def __post_init__(self) -> None:
         if not self.socket_path.startswith("/"):

@@ -117,9 +117,15 @@ class SafetyConfig:
 
     def __post_init__(self) -> None:
         if not all(lo < hi for lo, hi in zip(self.geofence_min_m, self.geofence_max_m, strict=True)):
-            raise ValueError(f"geofence_min_m {self.geofence_min_m} must be below geofence_max_m")
+            raise ValueError(
+                f"geofence_min_m {list(self.geofence_min_m)} must be below geofence_max_m "
+                f"{list(self.geofence_max_m)} on every axis"
+            )
         if not self.altitude_floor_m < self.altitude_ceiling_m:
-            raise ValueError("altitude_floor_m must be below altitude_ceiling_m")
+            raise ValueError(
+                f"altitude_floor_m {self.altitude_floor_m!r} must be below altitude_ceiling_m "
+                f"{self.altitude_ceiling_m!r}"
+            )
 
 
 @dataclass(frozen=True)

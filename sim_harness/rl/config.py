@@ -20,7 +20,7 @@ from typing import Annotated, Any
 
 import pydantic
 
-from quadnav_onboard.config import ConfigError, parse_config
+from quadnav_onboard.config import CONFIG_DICT, ConfigError, parse_config
 from sim_harness.procgen import FAMILIES
 
 __all__ = [
@@ -33,113 +33,130 @@ __all__ = [
 ]
 
 
+_Seed = Annotated[int, pydantic.Field(ge=0, lt=2**32)]
+"""A seed: numpy's generators take [0, 2**32)."""
+
+
 @dataclass(frozen=True)
 class TrainConfig:
-    """DQN training per the paper, with the options beyond it (all off by default)."""
+    """DQN training per the paper, with the options beyond it (all off by default). Every numeric
+    field is finite and within the range its help text states; a value outside is refused
+    naming the source, the key and the value."""
 
-    __pydantic_config__ = {"extra": "forbid"}  # config files: unknown keys are errors
+    # config files: unknown keys are errors, and so are NaN and ±inf (quadnav_onboard.config.CONFIG_DICT)
+    __pydantic_config__ = CONFIG_DICT
 
     name: str = "paper"
     """Experiment name: the first part of the run directory name."""
-    seed: int = 0
-    """Seed of every RNG (numpy env/replay/exploration generators and torch)."""
-    episodes: Annotated[int, pydantic.Field(ge=1)] = 2000
-    """Training episodes (the paper: 2000); the schedules are indexed by episode."""
-    train_worlds: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 7)
-    """Paper world ids visited at random during training (never 8-10: they are held out)."""
+    seed: _Seed = 0
+    """Seed of every RNG (numpy env/replay/exploration generators and torch). Range: [0, 2**32)."""
+    episodes: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 2000
+    """Training episodes (the paper: 2000); the schedules are indexed by episode.
+    Range: [1, 10 000 000]."""
+    train_worlds: tuple[Annotated[int, pydantic.Field(ge=1, le=10)], ...] = (1, 2, 3, 4, 5, 6, 7)
+    """Paper world ids visited at random during training (never 8-10: they are held out). Range: 1..10."""
     world_files: tuple[str, ...] = ()
     """World YAML files to train on instead of ``train_worlds`` (when not empty)."""
-    procedural_worlds: Annotated[int, pydantic.Field(ge=0)] = 0
+    procedural_worlds: Annotated[int, pydantic.Field(ge=0, le=100_000)] = 0
     """Procedurally generated worlds of the paper's families added to the training set
-    (sim_harness.procgen; 0 = the paper), drawn from ``procedural_seed``."""
-    procedural_seed: int = 20261124
-    """Seed of the procedural world generator (fixed: the training set is part of the recipe)."""
+    (sim_harness.procgen; 0 = the paper), drawn from ``procedural_seed``. Range: [0, 100 000]."""
+    procedural_seed: _Seed = 20261124
+    """Seed of the procedural world generator (fixed: the training set is part of the recipe).
+    Range: [0, 2**32)."""
     procedural_families: tuple[str, ...] = FAMILIES
     """Families the generated training worlds cycle through, in order (sim_harness.procgen.FAMILIES;
     one named twice is drawn twice as often)."""
-    n_envs: Annotated[int, pydantic.Field(ge=1)] = 16
-    """Environments stepped together (vectorised numpy)."""
-    max_steps: Annotated[int, pydantic.Field(ge=1)] = 120
-    """Step limit per training episode."""
-    primitive_scale_m: Annotated[float, pydantic.Field(gt=0)] = 1.0
+    n_envs: Annotated[int, pydantic.Field(ge=1, le=4096)] = 16
+    """Environments stepped together (vectorised numpy). Range: [1, 4096]."""
+    max_steps: Annotated[int, pydantic.Field(ge=1, le=10_000)] = 120
+    """Step limit per training episode. Range: [1, 10 000]."""
+    primitive_scale_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 1.0
     """Size (m per axis) of the primitives trained with (beyond the paper's sim, which trains at
     1 m and flies at 0.5 m). The moving setpoint slows and ``max_steps`` (written for 1 m) grows in
-    proportion; the checkpoint records the scale, and eval flies it at that scale by default."""
-    start_jitter_m: Annotated[float, pydantic.Field(ge=0)] = 0.5
-    """Half-width (m) of the random start offset per axis."""
-    reward_d_floor_m: Annotated[float, pydantic.Field(gt=0)] = 0.25
+    proportion; the checkpoint records the scale, and eval flies it at that scale by default.
+    Range: (0, 5]."""
+    start_jitter_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.5
+    """Half-width (m) of the random start offset per axis. Range: [0, 5]."""
+    reward_d_floor_m: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.25
     """Floor (m) on the setpoint distance d_t that divides the paper's shaping reward (the paper
     leaves d_t -> 0 undefined; 0.25 m caps a step's reward at 2). Evaluation always reports the
-    reward with the default floor."""
+    reward with the default floor. Range: (0, 5]."""
     random_start_prob: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
-    """Share of training episodes started at a random free point along the path (0 = the paper)."""
+    """Share of training episodes started at a random free point along the path (0 = the paper).
+    Range: [0, 1]."""
     eps_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 1.0
-    """ε at episode 0."""
+    """ε at episode 0. Range: [0, 1]."""
     eps_end: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.1
-    """ε from the end of the ramp on."""
+    """ε from the end of the ramp on. Range: [0, 1]."""
     gamma_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.01
-    """Discount γ at episode 0 (the paper grows γ)."""
+    """Discount γ at episode 0 (the paper grows γ). Range: [0, 1]."""
     gamma_end: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.99
-    """Discount γ from the end of the ramp on."""
+    """Discount γ from the end of the ramp on. Range: [0, 1]."""
     schedule_fraction: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.8
-    """Fraction of the episodes over which ε and γ ramp linearly; flat afterwards."""
-    learning_rate: Annotated[float, pydantic.Field(gt=0)] = 1e-3
-    """Adam step size (PyTorch's default; the paper states none, and 1e-4 learns more: docs/results.md)."""
-    lr_end: Annotated[float, pydantic.Field(gt=0)] | None = None
+    """Fraction of the episodes over which ε and γ ramp linearly; flat afterwards. Range: (0, 1]."""
+    learning_rate: Annotated[float, pydantic.Field(gt=0, le=1)] = 1e-3
+    """Adam step size (PyTorch's default; the paper states none, and 1e-4 learns more: docs/results.md).
+    Range: (0, 1]."""
+    lr_end: Annotated[float, pydantic.Field(gt=0, le=1)] | None = None
     """Step size at the last episode (beyond the paper): from the end of the ε/γ ramp on, it falls
-    linearly from ``learning_rate`` to this; None = constant (the paper)."""
-    batch_size: Annotated[int, pydantic.Field(ge=1)] = 64
-    """Minibatch size of one gradient update."""
-    buffer_size: Annotated[int, pydantic.Field(ge=1)] = 50_000
-    """Replay capacity (transitions)."""
-    learning_starts: Annotated[int, pydantic.Field(ge=1)] = 1_000
-    """Transitions stored before the first update."""
-    updates_per_step: Annotated[float, pydantic.Field(gt=0)] = 2.0
-    """Gradient updates per vectorised step (of n_envs transitions); fractions accumulate."""
-    target_update_interval: Annotated[int, pydantic.Field(ge=1)] = 250
-    """Updates between hard target-network copies."""
-    max_grad_norm: Annotated[float, pydantic.Field(ge=0)] = 10.0
-    """Gradient norm clip (0 = off)."""
+    linearly from ``learning_rate`` to this; None = constant (the paper). Range: (0, 1]."""
+    batch_size: Annotated[int, pydantic.Field(ge=1, le=65_536)] = 64
+    """Minibatch size of one gradient update. Range: [1, 65 536]."""
+    buffer_size: Annotated[int, pydantic.Field(ge=1, le=100_000_000)] = 50_000
+    """Replay capacity (transitions). Range: [1, 10^8]."""
+    learning_starts: Annotated[int, pydantic.Field(ge=1, le=100_000_000)] = 1_000
+    """Transitions stored before the first update. Range: [1, 10^8]."""
+    updates_per_step: Annotated[float, pydantic.Field(gt=0, le=1000)] = 2.0
+    """Gradient updates per vectorised step (of n_envs transitions); fractions accumulate.
+    Range: (0, 1000]."""
+    target_update_interval: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 250
+    """Updates between hard target-network copies. Range: [1, 10^7]."""
+    max_grad_norm: Annotated[float, pydantic.Field(ge=0, le=1e6)] = 10.0
+    """Gradient norm clip (0 = off). Range: [0, 10^6]."""
     double_dqn: bool = False
     """Double DQN targets (beyond the paper)."""
     dueling: bool = False
     """Dueling value/advantage head (beyond the paper)."""
-    n_step: Annotated[int, pydantic.Field(ge=1)] = 1
-    """n-step returns (1 = the paper)."""
-    depth_history: Annotated[int, pydantic.Field(ge=1)] = 1
-    """Depth frames stacked as input (1 = the paper)."""
-    position_history: Annotated[int, pydantic.Field(ge=1)] = 1
-    """Relative positions stacked as input (1 = the paper)."""
+    n_step: Annotated[int, pydantic.Field(ge=1, le=100)] = 1
+    """n-step returns (1 = the paper). Range: [1, 100]."""
+    depth_history: Annotated[int, pydantic.Field(ge=1, le=32)] = 1
+    """Depth frames stacked as input (1 = the paper). Range: [1, 32]."""
+    position_history: Annotated[int, pydantic.Field(ge=1, le=32)] = 1
+    """Relative positions stacked as input (1 = the paper). Range: [1, 32]."""
     prioritized_replay: bool = False
     """Prioritised replay (beyond the paper): transitions sampled in proportion to |TD error|^α,
     the loss weighted by importance sampling (sim_harness.rl.replay.PrioritizedReplayBuffer)."""
-    per_alpha: Annotated[float, pydantic.Field(ge=0)] = 0.6
-    """Priority exponent α of prioritised replay (0 = uniform; Schaul et al. 2016: 0.6)."""
+    per_alpha: Annotated[float, pydantic.Field(ge=0, le=10)] = 0.6
+    """Priority exponent α of prioritised replay (0 = uniform; Schaul et al. 2016: 0.6).
+    Range: [0, 10]."""
     per_beta_start: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.4
-    """Importance-sampling exponent β at episode 0; it grows linearly to 1 at the last episode."""
+    """Importance-sampling exponent β at episode 0; it grows linearly to 1 at the last episode.
+    Range: [0, 1]."""
     shield: bool = False
     """Depth safety filter in the loop (beyond the paper): acting (greedy and random) and the TD
     target keep to the primitives it allows; the checkpoint records it, so eval and the daemon
     fly with it too (quadnav_onboard.shield)."""
-    shield_clearance_m: Annotated[float, pydantic.Field(gt=0)] = 0.5
-    """Least clearance (m) from a primitive's predicted path to remembered depth points."""
-    shield_memory_steps: Annotated[int, pydantic.Field(ge=1)] = 4
-    """Decisions whose depth points the shield remembers."""
+    shield_clearance_m: Annotated[float, pydantic.Field(gt=0, lt=1.5)] = 0.5
+    """Least clearance (m) from a primitive's predicted path to remembered depth points.
+    Range: (0, 1.5), below the filter's search radius."""
+    shield_memory_steps: Annotated[int, pydantic.Field(ge=1, le=64)] = 4
+    """Decisions whose depth points the shield remembers. Range: [1, 64]."""
     shield_require_seen: bool = False
     """The shield also vetoes primitives into space no remembered view saw to be free."""
     init_model: str = ""
     """Checkpoint whose weights start the online and target networks (fine-tuning; "" = random
     init). Its network shape must match this config's."""
-    checkpoint_every: Annotated[int, pydantic.Field(ge=1)] = 100
-    """Episodes between checkpoints (model + resumable training state)."""
-    keep_every: Annotated[int, pydantic.Field(ge=0)] = 0
+    checkpoint_every: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 100
+    """Episodes between checkpoints (model + resumable training state). Range: [1, 10^7]."""
+    keep_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
     """Episodes between model snapshots kept as ``checkpoints/ep{N}.pt`` (0 = none), so a
-    checkpoint can be chosen afterwards by an evaluation on the training worlds."""
-    torch_threads: Annotated[int, pydantic.Field(ge=1)] = 1
-    """torch.set_num_threads (1: on a loaded 2-core machine two OpenMP threads ran ~10x slower)."""
-    sim_threads: Annotated[int, pydantic.Field(ge=0)] = 1
+    checkpoint can be chosen afterwards by an evaluation on the training worlds. Range: [0, 10^7]."""
+    torch_threads: Annotated[int, pydantic.Field(ge=1, le=1024)] = 1
+    """torch.set_num_threads (1: on a loaded 2-core machine two OpenMP threads ran ~10x slower).
+    Range: [1, 1024]."""
+    sim_threads: Annotated[int, pydantic.Field(ge=0, le=1024)] = 1
     """numba threads for rendering and collision (0 = numba's default, all cores; small batches
-    of envs run faster on one)."""
+    of envs run faster on one). Range: [0, 1024]."""
     device: str = "cpu"
     """torch device of the learner ("cpu", "cuda"); the env always runs on the CPU."""
     out_dir: str = "runs"
