@@ -14,6 +14,11 @@ A world is read from a YAML file with this contract (world frame: x forward, y l
       - {type: cylinder, center: [20, -1, 2.5], radius: 0.5, height: 5, axis: z}   # axis x|y|z
 
 A bad file raises :class:`WorldError` naming the file, the entry (``obstacles[3]``) and the reason.
+Every waypoint of the path (its start and goal included) must lie in free space: above the floor,
+below the ceiling and outside every obstacle, with at least :data:`WAYPOINT_CLEARANCE_M` (the
+simulated quad's radius) to spare; a path starting inside a box would crash on take-off, and one
+above the ceiling could never be flown. The segments between waypoints may cross obstacles:
+flying round them is the planner's job.
 Every world also carries :class:`Geometry`, the obstacles packed into arrays for the ray caster
 (:mod:`sim_harness.render`) and the collision checker (:mod:`sim_harness.collision`).
 """
@@ -35,6 +40,7 @@ from quadnav_onboard.path import RoughPath
 __all__ = [
     "TEST_WORLD_IDS",
     "TRAIN_WORLD_IDS",
+    "WAYPOINT_CLEARANCE_M",
     "WORLDS_DIR",
     "Box",
     "Cylinder",
@@ -53,6 +59,11 @@ __all__ = [
 WORLDS_DIR = Path(__file__).resolve().parent / "worlds"
 TRAIN_WORLD_IDS = (1, 2, 3, 4, 5, 6, 7)
 TEST_WORLD_IDS = (8, 9, 10)
+
+WAYPOINT_CLEARANCE_M = 0.3
+"""Least distance (m) from every waypoint to the floor, the ceiling and each obstacle: the radius of
+the simulated quad (``sim_harness.quad.QuadParams.radius_m``), so it can be at each waypoint
+without touching anything."""
 
 # Shape codes in Geometry.kind.
 KIND_BOX, KIND_SPHERE, KIND_CYLINDER = 0, 1, 2
@@ -289,8 +300,41 @@ def parse_world(mapping: Any, source: str = "<world>") -> World:
     if not isinstance(raw_obs, (list, tuple)):
         raise WorldError(f"{source}: obstacles: must be a list, got {type(raw_obs).__name__}")
     obstacles = tuple(_parse_obstacle(e, f"{source}: obstacles[{i}]") for i, e in enumerate(raw_obs))
-    return World(name=name.strip(), path=rough, description=description.strip(), floor_z_m=floor,
-                 ceiling_z_m=ceiling, obstacles=obstacles)
+    world = World(name=name.strip(), path=rough, description=description.strip(), floor_z_m=floor,
+                  ceiling_z_m=ceiling, obstacles=obstacles)
+    _check_waypoints_free(world, source)
+    return world
+
+
+def _check_waypoints_free(world: World, source: str) -> None:
+    """Refuse a waypoint (start and goal included) below the floor, above the ceiling or inside an
+    obstacle, or nearer to any of them than :data:`WAYPOINT_CLEARANCE_M`; the error names the
+    file, the waypoint and what it is in."""
+    from sim_harness.collision import clearance_m  # imports this module
+
+    r = WAYPOINT_CLEARANCE_M
+    wps = world.path.waypoints_m
+    role = {0: "the start", len(wps) - 1: "the goal"}
+    for k, wp in enumerate(wps):
+        where = f"{source}: path.waypoints[{k}] {wp.tolist()} ({role.get(k, 'a waypoint')})"
+        if world.floor_z_m is not None and wp[2] < world.floor_z_m + r:
+            what = "below the floor" if wp[2] < world.floor_z_m else f"within {r} m of the floor"
+            raise WorldError(f"{where}: {what} (bounds.floor_z {world.floor_z_m})")
+        if world.ceiling_z_m is not None and wp[2] > world.ceiling_z_m - r:
+            what = "above the ceiling" if wp[2] > world.ceiling_z_m else f"within {r} m of the ceiling"
+            raise WorldError(f"{where}: {what} (bounds.ceiling_z {world.ceiling_z_m})")
+    if not world.obstacles:
+        return
+    for k in np.flatnonzero(clearance_m(world, wps) < r):
+        wp = wps[k]
+        where = f"{source}: path.waypoints[{k}] {wp.tolist()} ({role.get(int(k), 'a waypoint')})"
+        for i, ob in enumerate(world.obstacles):
+            alone = World(name=world.name, path=world.path, obstacles=(ob,))
+            c = float(clearance_m(alone, wp[None])[0])
+            if c < r:
+                what = "inside" if c < 0 else f"within {r} m of"
+                raise WorldError(f"{where}: {what} obstacles[{i}] ({type(ob).__name__.lower()} at "
+                                 f"{list(ob.center_m)})")
 
 
 def load_world(path: str | Path) -> World:

@@ -266,3 +266,47 @@ def test_corridor_widths_and_env8_sphere() -> None:
     assert len(spheres) == 1
     corridor = inner_width(8, 48.0)
     assert corridor <= 3.5 and 2 * spheres[0].radius_m >= 0.8 * corridor
+
+
+_BOUNDED = "name: a\npath: {waypoints: [[0,0,2],[5,0,2],[9,0,2]]}\nbounds: {floor_z: 0.0, ceiling_z: 4.0}\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "needles"),
+    [
+        (_BOUNDED + "obstacles:\n - {type: box, center: [0, 0, 2], size: [2, 2, 2]}\n",
+         ["path.waypoints[0] [0.0, 0.0, 2.0] (the start)", "inside obstacles[0] (box at [0.0, 0.0, 2.0])"]),
+        (_BOUNDED + "obstacles:\n - {type: box, center: [0, 5, 2], size: [1, 1, 1]}\n"
+         " - {type: sphere, center: [9, 0, 2.5], radius: 1}\n",
+         ["path.waypoints[2] [9.0, 0.0, 2.0] (the goal)", "inside obstacles[1] (sphere"]),
+        (_BOUNDED + "obstacles:\n - {type: cylinder, center: [5, 0.4, 2], radius: 0.2, height: 3}\n",
+         ["path.waypoints[1] [5.0, 0.0, 2.0] (a waypoint)", "within 0.3 m of obstacles[0] (cylinder"]),
+        ("name: a\npath: {waypoints: [[0,0,2],[5,0,9],[9,0,2]]}\nbounds: {floor_z: 0.0, ceiling_z: 8.0}\n",
+         ["path.waypoints[1] [5.0, 0.0, 9.0]", "above the ceiling (bounds.ceiling_z 8.0)"]),
+        ("name: a\npath: {waypoints: [[0,0,-1],[9,0,2]]}\nbounds: {floor_z: 0.0}\n",
+         ["path.waypoints[0] [0.0, 0.0, -1.0] (the start)", "below the floor (bounds.floor_z 0.0)"]),
+        ("name: a\npath: {waypoints: [[0,0,2],[9,0,0.1]]}\nbounds: {floor_z: 0.0}\n",
+         ["path.waypoints[1] [9.0, 0.0, 0.1] (the goal)", "within 0.3 m of the floor"]),
+    ],
+)
+def test_a_path_through_solids_or_out_of_bounds_is_refused_at_load(
+    tmp_path: Path, text: str, needles: list[str]
+) -> None:
+    """A start inside an obstacle crashed the dry run on take-off and counted as the policy's crash
+    in eval; a waypoint above the ceiling or below the floor was accepted everywhere. Now the world
+    is refused when it is loaded, naming the file and the waypoint."""
+    path = _write(tmp_path, text)
+    with pytest.raises(WorldError) as info:
+        load_world(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: ")
+    for needle in needles:
+        assert needle in msg
+
+
+def test_segments_may_cross_obstacles_and_waypoints_may_pass_close_by(tmp_path: Path) -> None:
+    """The rough path may run through an obstacle between waypoints (the planner flies round it),
+    and a waypoint just beyond the quad's radius from a solid is fine."""
+    text = _BOUNDED + "obstacles:\n - {type: box, center: [3, 0, 2], size: [1, 4, 4]}\n" \
+        " - {type: sphere, center: [5, 0.81, 2], radius: 0.5}\n"
+    assert len(load_world(_write(tmp_path, text)).obstacles) == 2
