@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -45,15 +46,25 @@ def at_flight_scale(
 
 def _positive(text: str) -> float:
     value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be > 0 and finite, got {text}")
     return value
 
 
 def _non_negative(text: str) -> float:
     value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    if not (value >= 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be >= 0 and finite, got {text}")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
     return value
 
 
@@ -102,11 +113,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--procedural",
-        type=int,
-        default=0,
+        type=_count,
+        default=None,
         metavar="N",
-        help="fly N procedurally generated worlds of the paper's families instead (never trained on "
-        "unless their seed is the training one; see --procedural-seed)",
+        help="fly N >= 1 procedurally generated worlds of the paper's families instead of --world "
+        "(never trained on unless their seed is the training one; see --procedural-seed)",
     )
     p.add_argument(
         "--procedural-seed",
@@ -154,20 +165,24 @@ def run(args: argparse.Namespace) -> int:
     if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
         print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
         return 2
+    if args.world and args.procedural is not None:
+        print("quadnav-sim eval: give --world or --procedural N, not both", file=sys.stderr)
+        return 2
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
     try:
         policy = Policy.from_path(model)
-        paths = (
-            [resolve_world_arg(w) for w in args.world]
-            if args.world
-            else [paper_world_path(i) for i in range(1, 11)]
-        )
-        worlds = [load_world(p) for p in paths]
-        if args.procedural > 0:
+        if args.procedural is not None:
             from sim_harness.procgen import procedural_worlds
 
             worlds = procedural_worlds(args.procedural, args.procedural_seed)
-            paths = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
+            paths: list[Path | str] = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
+        else:
+            paths = (
+                [resolve_world_arg(w) for w in args.world]
+                if args.world
+                else [paper_world_path(i) for i in range(1, 11)]
+            )
+            worlds = [load_world(p) for p in paths]
         shield = shield_from_flags(policy, args)
         env_cfg = env_config_for_policy(
             policy, max_steps=args.max_steps or 120, start_jitter_m=args.start_jitter_m, shield=shield

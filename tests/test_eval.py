@@ -165,7 +165,8 @@ def test_eval_without_start_jitter_flies_every_trial_alike_and_says_so(tmp_path,
     assert len(rewards["0"]) == 1 and len(rewards["0.5"]) == 3
     with pytest.raises(SystemExit) as exc:
         main([*argv, "--start-jitter-m", "-0.1"])
-    assert exc.value.code == 2 and "--start-jitter-m: must be >= 0, got -0.1" in capsys.readouterr().err
+    assert exc.value.code == 2
+    assert "--start-jitter-m: must be >= 0 and finite, got -0.1" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("command", ["eval", "select"])
@@ -173,7 +174,7 @@ def test_a_scale_that_is_not_positive_is_refused_before_any_flight(command: str,
     with pytest.raises(SystemExit) as exc:
         main([command, "--primitive-scale", "0", "--no-progress"])
     assert exc.value.code == 2
-    assert "--primitive-scale: must be > 0, got 0" in capsys.readouterr().err
+    assert "--primitive-scale: must be > 0 and finite, got 0" in capsys.readouterr().err
 
 
 def test_trace_flight_script_replays_the_flight_eval_flew() -> None:
@@ -241,3 +242,26 @@ def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp
     bad = subprocess.run([sys.executable, str(script), "--hfov", "0", "--vfov", "90", "--", "eval"],
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "--hfov 0" in bad.stderr
+
+
+@pytest.mark.parametrize("count", ["0", "-3", "two"])
+def test_procedural_needs_at_least_one_world(count: str, capsys) -> None:
+    """``--procedural 0`` silently ran the full paper evaluation; now it is a usage error."""
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", "--procedural", count, "--no-progress"])
+    assert exc.value.code == 2
+    assert "--procedural: must be" in capsys.readouterr().err
+
+
+def test_procedural_and_world_files_are_not_mixed(tmp_path, capsys) -> None:
+    """--procedural replaced the --world files without a word; giving both is refused."""
+    model = save_checkpoint(tmp_path / "m.pt", DQN(NetworkConfig()))
+    rc = main(["eval", "--model", str(model), "--world", "env01", "--procedural", "2", "--no-progress"])
+    assert rc == 2 and "give --world or --procedural N, not both" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--primitive-scale", "inf"), ("--start-jitter-m", "nan")])
+def test_non_finite_flight_flags_are_refused(flag: str, value: str, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", flag, value, "--no-progress"])
+    assert exc.value.code == 2 and f"{flag}: must be" in capsys.readouterr().err
