@@ -10,6 +10,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from quadnav_onboard.record import FlightRecorder, NullRecorder, RecorderError, RecordError, read_record
+from quadnav_onboard.record.recorder import RecordExistsError, record_name
 from quadnav_onboard.record.schemas import SCHEMAS, TOPICS
 
 
@@ -180,9 +181,41 @@ def test_unwritable_path_is_a_clear_error(tmp_path):
     assert str(blocker) in str(err.value)
 
 
+def test_a_record_is_never_opened_over_an_existing_file(tmp_path, writer):
+    """A quick restart used to overwrite the previous flight's record ("wb"): the file is now
+    created exclusively, and an existing one is refused and left as it was."""
+    path = tmp_path / "f.mcap"
+    path.write_bytes(b"the previous flight")
+    with pytest.raises(RecordExistsError, match="the file exists"):
+        FlightRecorder(path, metadata={}, writer=writer)
+    assert path.read_bytes() == b"the previous flight"
+
+
+def test_flights_started_together_get_records_of_their_own(tmp_path, writer):
+    """Two flights in the same second wrote one unreadable file: names now carry microseconds,
+    and two recorders opened for the very same instant take the next free suffix; both read back."""
+    t = 1_764_655_200.123456
+    recs = [FlightRecorder.new_in(tmp_path, t_unix_s=t, metadata={"n": n}, writer=writer) for n in "012"]
+    for rec in recs:
+        rec.close("ok", {})
+    names = [rec.path.name for rec in recs]
+    assert names == [
+        "flight-20251202-060000.123456.mcap",
+        "flight-20251202-060000.123456-2.mcap",
+        "flight-20251202-060000.123456-3.mcap",
+    ]
+    assert [read_record(rec.path).info["n"] for rec in recs] == ["0", "1", "2"]
+
+
+def test_record_names_sort_by_time_to_the_microsecond():
+    assert record_name(1_764_655_200.0) < record_name(1_764_655_200.000002) < record_name(1_764_655_201.0)
+    assert record_name(1_764_655_200.5, 7) == "flight-20251202-060000.500000-7.mcap"
+
+
 def test_null_recorder_has_the_recorders_methods():
     """NullRecorder can stand in for FlightRecorder: every public method exists and does nothing."""
-    public = {n for n in dir(FlightRecorder) if not n.startswith("_")} - {"error"}
+    constructors = {"new_in"}
+    public = {n for n in dir(FlightRecorder) if not n.startswith("_")} - {"error"} - constructors
     missing = {n for n in public if not hasattr(NullRecorder, n)}
     assert not missing
     NullRecorder().close("x", {})

@@ -24,6 +24,10 @@ whose flight process dies without closing the record finishes it itself (stop re
 
 A write error (disk full, unplugged, the writer process gone) never reaches the caller: the
 recorder logs it once, stops writing and counts further calls as ``drop_counts['failed']``.
+
+A record is never opened over an existing file (``O_EXCL``): :meth:`FlightRecorder.new_in` names
+each flight's record by its UTC start time to the microsecond and, should that name be taken (two
+flights started together, a clock stepped back), takes the next free ``-2``, ``-3``, ... suffix.
 """
 
 from __future__ import annotations
@@ -49,13 +53,37 @@ from quadnav_onboard.logs import get_logger
 from quadnav_onboard.record.protocol import NullRecorder, Recorder
 from quadnav_onboard.record.sink import Item, McapSink
 
-__all__ = ["FlightRecorder", "NullRecorder", "Recorder", "RecorderError"]  # the last three re-exported
+__all__ = [  # NullRecorder, Recorder and RecorderError are re-exported by quadnav_onboard.record
+    "FlightRecorder",
+    "NullRecorder",
+    "RecordExistsError",
+    "Recorder",
+    "RecorderError",
+    "record_name",
+]
 
 _log = get_logger("quadnav.record")
 
 
 class RecorderError(OSError):
     """The record file cannot be created (the message names the path and the reason)."""
+
+
+class RecordExistsError(RecorderError):
+    """A file already exists where the record would be written; it is left as it was."""
+
+
+_MAX_SUFFIX = 1000
+"""Names :meth:`FlightRecorder.new_in` tries for one time stamp before giving up."""
+
+
+def record_name(t_unix_s: float, n: int = 1) -> str:
+    """The record file name of a flight started at ``t_unix_s`` (UTC, to the microsecond), the
+    ``n``-th to take that time stamp: ``flight-20261202-061500.123456.mcap``, then ``...-2.mcap``."""
+    whole = int(t_unix_s // 1)
+    micro = min(int((t_unix_s - whole) * 1e6), 999_999)
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(whole)) + f".{micro:06d}"
+    return f"flight-{stamp}{'' if n == 1 else f'-{n}'}.mcap"
 
 
 _IMAGES_PER_BATCH = 4
@@ -126,7 +154,11 @@ class FlightRecorder:
         self._local_invalid = 0  # invalid items caught in this process (the rest: by a writer process)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            file = open(self.path, "wb")  # noqa: SIM115 - handed to the writer, which closes it
+            file = open(self.path, "xb")  # noqa: SIM115 - handed to the writer, which closes it
+        except FileExistsError:
+            raise RecordExistsError(
+                f"{self.path}: cannot create flight record: the file exists (a record is never written over)"
+            ) from None
         except OSError as exc:
             raise RecorderError(f"{self.path}: cannot create flight record: {exc.strerror or exc}") from None
         options = {
@@ -148,6 +180,22 @@ class FlightRecorder:
                 raise RecorderError(f"{self.path}: cannot write flight record: {exc}") from None
         self._thread = threading.Thread(target=self._run, name="flight-recorder", daemon=True)
         self._thread.start()
+
+    @classmethod
+    def new_in(cls, directory: str | Path, *, t_unix_s: float | None = None, **kwargs: Any) -> FlightRecorder:
+        """A recorder writing a new file in ``directory``, named by :func:`record_name` for
+        ``t_unix_s`` (default: now); a name already taken, even by a flight starting at the same
+        moment, moves on to the next suffix. ``kwargs``: as for the constructor."""
+        t = time.time() if t_unix_s is None else float(t_unix_s)
+        for n in range(1, _MAX_SUFFIX + 1):
+            try:
+                return cls(Path(directory) / record_name(t, n), **kwargs)
+            except RecordExistsError:
+                continue
+        raise RecordExistsError(
+            f"{Path(directory) / record_name(t)}: cannot create flight record: {_MAX_SUFFIX} files of that "
+            "time stamp exist"
+        )
 
     # -- caller side: copy, enqueue, return -------------------------------------------------
 
