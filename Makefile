@@ -15,13 +15,16 @@ $(VENV)/bin/python:
 	python3 -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 
+# Both install the `mocap` extra (motioncapture): the dry run reads its emulated OptiTrack server through
+# that library. It has x86-64 wheels; on ARM64 pip builds it from source (C++ toolchain, boost, eigen:
+# docs/hardware.md, section 1). A vehicle that flies on PX4's own odometry needs only `pip install .`.
 install: $(VENV)/bin/python
 	$(PIP) install -q $(TORCH_PIN)
-	$(PIP) install -q -e .
+	$(PIP) install -q -e ".[mocap]"
 
 install-dev: $(VENV)/bin/python
 	$(PIP) install -q $(TORCH_PIN)
-	$(PIP) install -q -e ".[dev]"
+	$(PIP) install -q -e ".[dev,mocap]"
 
 ## Quick start 1: install, then fly Env 1 in the sim (emulated PX4 over real MAVLink) with the bundled model.
 dry-run: install

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Any
 
 from quadnav_onboard.config import ConfigError
@@ -9,7 +10,28 @@ from quadnav_onboard.daemon.config import FlightConfig
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.vehicle import MavsdkVehicle
 
-__all__ = ["hardware_parts"]
+__all__ = ["MOCAP_EXTRA_INSTALL", "hardware_parts", "require_motioncapture"]
+
+MOCAP_EXTRA_INSTALL = "pip install 'quadnav[mocap]'"
+"""How to get the motioncapture library (an optional extra: it has no ARM64 wheel)."""
+
+
+def require_motioncapture(source: str = "config") -> None:
+    """Refuse ``odometry.kind: mocap`` when the motioncapture library is not importable (ConfigError).
+
+    Checked with ``importlib.util.find_spec``, before anything connects or arms; the library itself
+    is imported only by the mocap source.
+    """
+    try:
+        found = importlib.util.find_spec("motioncapture") is not None
+    except (ImportError, ValueError):  # a broken or half-installed package
+        found = False
+    if not found:
+        raise ConfigError(
+            f"{source}: key 'odometry.kind': value 'mocap' needs the motioncapture library, which is "
+            f"not installed: {MOCAP_EXTRA_INSTALL} (on ARM64 it builds from source: "
+            "docs/hardware.md, section 1)"
+        )
 
 
 def hardware_parts(cfg: FlightConfig, source: str = "config") -> dict[str, Any]:
@@ -36,6 +58,7 @@ def hardware_parts(cfg: FlightConfig, source: str = "config") -> dict[str, Any]:
         raise ConfigError(f"{source}: key 'depth.kind': bad value 'sim': only with --dry-run")
     o = cfg.odometry
     if o.kind == "mocap":
+        require_motioncapture(source)
         from quadnav_onboard.sources.mocap import MocapOdometrySource, MocapTransform
 
         transform = MocapTransform(o.rotation_world_from_mocap, o.translation_world_m)

@@ -1,0 +1,121 @@
+"""What the package asks the installer for, and how the daemon behaves when the optional motion-capture
+library is missing: ``odometry.kind: mocap`` is refused before anything connects, naming the extra;
+every other configuration works without it."""
+
+from __future__ import annotations
+
+import re
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from quadnav_onboard.cli import main
+from quadnav_onboard.config import ConfigError
+from quadnav_onboard.daemon.config import OdometrySourceConfig, load_flight_config
+from quadnav_onboard.daemon.hardware import hardware_parts, require_motioncapture
+from quadnav_onboard.vehicle import MavsdkVehicle
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pytest itself depends on tomli before 3.11
+    import tomli as tomllib
+
+REPO = Path(__file__).resolve().parent.parent
+FLIGHT_YAML = REPO / "config" / "flight.yaml"
+
+
+def _pyproject() -> dict:
+    return tomllib.loads((REPO / "pyproject.toml").read_text())
+
+
+def _names(requirements: list[str]) -> dict[str, str]:
+    """{distribution name (lower case): its version specifier}."""
+    out = {}
+    for req in requirements:
+        m = re.match(r"\s*([A-Za-z0-9_.-]+)\s*(.*)", req)
+        assert m is not None, req
+        out[m.group(1).lower()] = m.group(2).strip()
+    return out
+
+
+@pytest.fixture
+def no_motioncapture(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The motioncapture library cannot be imported (what an install without the extra looks like)."""
+    monkeypatch.setitem(sys.modules, "motioncapture", None)
+    with pytest.raises(ImportError):
+        import motioncapture  # noqa: F401
+
+
+def test_motioncapture_is_an_extra_and_not_a_runtime_dependency() -> None:
+    """A plain install never pulls motioncapture (no ARM64 wheel); `quadnav[mocap]` does."""
+    project = _pyproject()["project"]
+    assert "motioncapture" not in _names(project["dependencies"])
+    assert "motioncapture" in _names(project["optional-dependencies"]["mocap"])
+
+
+def test_build_backend_and_exact_pins() -> None:
+    """setuptools >= 77 (SPDX license string), and mavsdk pinned exactly (its offboard plugin object
+    is used directly by the setpoint path)."""
+    pyproject = _pyproject()
+    assert "setuptools>=77" in pyproject["build-system"]["requires"]
+    assert pyproject["project"]["license"] == "BSD-3-Clause"
+    assert _names(pyproject["project"]["dependencies"])["mavsdk"].startswith("==")
+
+
+def test_makefile_installs_the_mocap_extra_for_the_dry_run() -> None:
+    """`make install` / `make install-dev` install the extra (the dry run reads an emulated NatNet
+    server through the real motioncapture library)."""
+    makefile = (REPO / "Makefile").read_text()
+    assert re.search(r"^\s*\$\(PIP\) install -q -e \"?\.\[mocap\]\"?\s*$", makefile, re.MULTILINE)
+    assert re.search(r"^\s*\$\(PIP\) install -q -e \"?\.\[dev,mocap\]\"?\s*$", makefile, re.MULTILINE)
+
+
+def test_the_check_refuses_without_the_library_naming_the_extra(no_motioncapture: None) -> None:
+    """The refusal is a ConfigError naming the file, the key, the value and the install command."""
+    with pytest.raises(ConfigError) as err:
+        require_motioncapture("flight.yaml")
+    msg = str(err.value)
+    assert msg.startswith("flight.yaml: key 'odometry.kind': value 'mocap'")
+    assert "pip install 'quadnav[mocap]'" in msg
+
+
+def test_the_check_passes_with_the_library_installed() -> None:
+    """In this environment (the dev install has the extra) the check finds motioncapture."""
+    require_motioncapture("flight.yaml")
+
+
+def test_mocap_odometry_without_the_library_is_refused_by_the_wiring(no_motioncapture: None) -> None:
+    """hardware_parts refuses the lab config (kind: mocap) before building any source."""
+    cfg = load_flight_config(FLIGHT_YAML)
+    assert cfg.odometry.kind == "mocap"
+    with pytest.raises(ConfigError, match=re.escape("quadnav[mocap]")):
+        hardware_parts(cfg, str(FLIGHT_YAML))
+
+
+def test_px4_odometry_needs_no_motioncapture(no_motioncapture: None) -> None:
+    """A lab flying on PX4's own estimate gets all its parts without the extra."""
+    cfg = load_flight_config(FLIGHT_YAML)
+    cfg = replace(cfg, odometry=OdometrySourceConfig(kind="px4"))
+    parts = hardware_parts(cfg, str(FLIGHT_YAML))
+    assert type(parts["odometry"]).__name__ == "Px4OdometrySource"
+
+
+def test_daemon_exits_2_before_connecting_when_the_extra_is_missing(
+    no_motioncapture: None, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`quadnav-onboard --config flight.yaml` (kind: mocap) exits 2, "refused before arming", with the
+    install command on stderr and without ever opening the vehicle link."""
+    connects: list[object] = []
+
+    async def connect(self: MavsdkVehicle) -> None:
+        connects.append(self)
+
+    monkeypatch.setattr(MavsdkVehicle, "connect", connect)
+    code = main(["--config", str(FLIGHT_YAML), "--no-record", "--log-format", "json"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "pip install 'quadnav[mocap]'" in err and "odometry.kind" in err
+    assert "Traceback" not in err
+    assert connects == []
