@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import enum
+import json
 import math
 import time
 from collections.abc import AsyncIterator
@@ -33,14 +35,51 @@ from quadnav_onboard.frames import (
 )
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.sources.base import OdometrySample
+from quadnav_onboard.vehicle_binding import (
+    Binding,
+    BindingError,
+    Candidate,
+    LinkGuard,
+    SourceChange,
+    guarded_address,
+)
 
-__all__ = ["MavsdkVehicle", "VehicleError", "VehicleLink", "VehicleState"]
+__all__ = [
+    "MAV_STATE_EMERGENCY",
+    "MavsdkVehicle",
+    "VehicleError",
+    "VehicleErrorKind",
+    "VehicleLink",
+    "VehicleState",
+]
 
 log = get_logger("quadnav.vehicle")
 
 
+MAV_STATE_EMERGENCY = 6
+"""HEARTBEAT system_status of a vehicle in an emergency (PX4: crashed, flight termination)."""
+
+
+class VehicleErrorKind(enum.Enum):
+    """Why a vehicle call failed."""
+
+    NOT_CONNECTED = "not_connected"
+    TIMEOUT = "timeout"
+    REFUSED = "refused"
+    NOT_SENT = "not_sent"
+    """A message (setpoint, vision estimate) could not be handed to the link."""
+    BINDING = "binding"
+    """Not exactly one autopilot on the link: the daemon refuses to pick one."""
+    CONNECT = "connect"
+    """The connection could not be opened, or no autopilot answered."""
+
+
 class VehicleError(RuntimeError):
-    """A vehicle command failed, was refused or timed out; the message says which."""
+    """A vehicle command failed, was refused or timed out; ``kind`` says which."""
+
+    def __init__(self, message: str, kind: VehicleErrorKind = VehicleErrorKind.REFUSED) -> None:
+        super().__init__(message)
+        self.kind = kind
 
 
 @dataclass
@@ -67,6 +106,18 @@ class VehicleState:
     """Monotonic time (s) of the newest message of any kind from the autopilot."""
     t_mode_mono_s: float = -math.inf
     """Monotonic time (s) of the newest mode report."""
+    binding: Binding | None = None
+    """The one autopilot flown (system, component, the address first heard from); None on links
+    the daemon does not own (serial, TCP)."""
+    source_changed: SourceChange | None = None
+    """Set when the bound system ID was heard from another address (a link fault)."""
+    other_autopilots: tuple[Candidate, ...] = ()
+    """Autopilots of other system IDs heard on the link after binding (never relayed)."""
+    tilt_rad: float = math.nan
+    """Angle (rad) between the body's up axis and the vertical, from the attitude telemetry; NaN
+    until reported."""
+    system_status: int | None = None
+    """HEARTBEAT system_status (MAV_STATE) of the autopilot; None until reported."""
 
 
 @runtime_checkable
@@ -111,40 +162,97 @@ class VehicleLink(Protocol):
 class MavsdkVehicle:
     """:class:`VehicleLink` over MAVSDK (native asyncio binding) at ``url``."""
 
-    def __init__(self, url: str, *, connect_timeout_s: float = 15.0, command_timeout_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        url: str,
+        *,
+        connect_timeout_s: float = 15.0,
+        command_timeout_s: float = 5.0,
+        bind_listen_s: float = 1.2,
+    ) -> None:
         self.url = url
         self.connect_timeout_s = connect_timeout_s
         self.command_timeout_s = command_timeout_s
+        self.bind_listen_s = bind_listen_s
+        """How long (s) after the first autopilot is heard the link is listened to for others."""
         self.state = VehicleState()
         self._mavsdk = None
-        self._telemetry = self._action = self._offboard = self._mocap = None
+        self._guard: LinkGuard | None = None
+        self._telemetry = self._action = self._offboard = self._mocap = self._direct = None
 
     async def connect(self) -> None:
+        """Bind to the one autopilot on the link (see :mod:`quadnav_onboard.vehicle_binding`), then
+        connect MAVSDK to it. Raises VehicleError: kind BINDING when more than one answers."""
         from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
         from mavsdk.asyncio.plugins.action import ActionAsync
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
         from mavsdk.asyncio.plugins.mocap import MocapAsync
         from mavsdk.asyncio.plugins.offboard import OffboardAsync
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
+        url = await self._bind()
         cfg = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
         self._mavsdk = Mavsdk(cfg)
         try:
             async with asyncio.timeout(self.connect_timeout_s):
-                await self._mavsdk.add_any_connection(self.url)
+                await self._mavsdk.add_any_connection(url)
                 system = await self._mavsdk.first_autopilot(timeout_s=self.connect_timeout_s)
+                if self._guard is None and system is not None:
+                    await self._refuse_merged_systems()
         except TimeoutError:
             system = None
+        except VehicleError:
+            raise
         except Exception as exc:
-            raise VehicleError(f"vehicle.url {self.url!r}: cannot open the connection: {exc}") from exc
+            raise VehicleError(
+                f"vehicle.url {self.url!r}: cannot open the connection: {exc}", VehicleErrorKind.CONNECT
+            ) from exc
         if system is None:
-            raise VehicleError(f"vehicle.url {self.url!r}: no autopilot within {self.connect_timeout_s:g} s")
+            raise VehicleError(
+                f"vehicle.url {self.url!r}: no autopilot within {self.connect_timeout_s:g} s",
+                VehicleErrorKind.CONNECT,
+            )
         self._telemetry = TelemetryAsync(system)
         self._action = ActionAsync(system)
         self._offboard = OffboardAsync(system)
         self._mocap = MocapAsync(system)
+        self._direct = MavlinkDirectAsync(system)
         self.state.connected = True
         self.state.t_last_msg_mono_s = time.monotonic()
-        log.info("vehicle_connected", url=self.url)
+        log.info("vehicle_connected", url=self.url, vehicle=str(self.state.binding or "(link not owned)"))
+
+    async def _bind(self) -> str:
+        """On a udpin:// link, own the port and bind to its one autopilot; the URL MAVSDK uses."""
+        if guarded_address(self.url) is None:
+            return self.url
+        self._guard = LinkGuard(self.url, listen_s=self.bind_listen_s)
+        try:
+            self.state.binding = await self._guard.bind(self.connect_timeout_s)
+        except BindingError as exc:
+            raise VehicleError(str(exc), VehicleErrorKind.BINDING) from exc
+        except TimeoutError:
+            raise VehicleError(
+                f"vehicle.url {self.url!r}: no autopilot within {self.connect_timeout_s:g} s",
+                VehicleErrorKind.CONNECT,
+            ) from None
+        except OSError as exc:
+            raise VehicleError(
+                f"vehicle.url {self.url!r}: cannot open the connection: {exc}", VehicleErrorKind.CONNECT
+            ) from exc
+        return self._guard.mavsdk_url
+
+    async def _refuse_merged_systems(self) -> None:
+        """On a link the daemon does not own (serial, TCP), MAVSDK's own view: refuse when it
+        reports more than one autopilot system after the listening window."""
+        await asyncio.sleep(self.bind_listen_s)
+        autopilots = [s for s in await self._mavsdk.get_systems() if await s.has_autopilot()]
+        if len(autopilots) > 1:
+            ids = [await s.get_system_id() for s in autopilots]
+            raise VehicleError(
+                f"vehicle.url {self.url!r}: {len(ids)} autopilots answer on the link (system IDs {ids}); "
+                "refusing to pick one",
+                VehicleErrorKind.BINDING,
+            )
 
     # --- telemetry -------------------------------------------------------------------------
 
@@ -155,6 +263,10 @@ class MavsdkVehicle:
             tg.create_task(self._watch_health())
             tg.create_task(self._watch_position())
             tg.create_task(self._watch_landed())
+            tg.create_task(self._watch_attitude())
+            tg.create_task(self._watch_heartbeat())
+            if self._guard is not None:
+                tg.create_task(self._watch_source())
 
     def _touch(self) -> float:
         now = time.monotonic()
@@ -189,20 +301,46 @@ class MavsdkVehicle:
             self._touch()
             self.state.landed = getattr(landed, "name", "") == "ON_GROUND"
 
+    async def _watch_attitude(self) -> None:
+        async for q in self._telemetry.subscribe_attitude_quaternion():
+            self._touch()
+            r = quat_to_rotmat([q.w, q.x, q.y, q.z])  # FRD body -> NED
+            self.state.tilt_rad = math.acos(max(-1.0, min(1.0, float(r[2, 2]))))
+
+    async def _watch_heartbeat(self) -> None:
+        """The autopilot's own state (MAV_STATE) from its heartbeats (MAVSDK's telemetry has none)."""
+        async for msg in self._direct.subscribe_message("HEARTBEAT"):
+            if msg.component_id != 1:
+                continue
+            with contextlib.suppress(ValueError, KeyError, TypeError):
+                self.state.system_status = int(json.loads(msg.fields_json)["system_status"])
+
+    async def _watch_source(self) -> None:
+        """Copy the guard's verdict on the link's source into the state (checked in flight)."""
+        guard = self._guard
+        assert guard is not None
+        while self.state.source_changed is None:
+            await asyncio.sleep(0.02)
+            self.state.source_changed = guard.source_changed
+            if len(guard.foreign) != len(self.state.other_autopilots):
+                self.state.other_autopilots = tuple(guard.foreign)
+
     # --- commands --------------------------------------------------------------------------
 
     async def _command(self, name: str, coro_fn) -> None:
         if self._action is None:
-            raise VehicleError(f"{name}: not connected")
+            raise VehicleError(f"{name}: not connected", VehicleErrorKind.NOT_CONNECTED)
         try:
             async with asyncio.timeout(self.command_timeout_s):
                 await coro_fn()
         except TimeoutError:
-            raise VehicleError(f"{name}: no answer within {self.command_timeout_s:g} s") from None
+            raise VehicleError(
+                f"{name}: no answer within {self.command_timeout_s:g} s", VehicleErrorKind.TIMEOUT
+            ) from None
         except VehicleError:
             raise
         except Exception as exc:  # MAVSDK raises ActionError/OffboardError with the PX4 result
-            raise VehicleError(f"{name}: refused: {exc}") from exc
+            raise VehicleError(f"{name}: refused: {exc}", VehicleErrorKind.REFUSED) from exc
         log.info("vehicle_command", command=name)
 
     async def arm(self) -> None:
@@ -239,7 +377,7 @@ class MavsdkVehicle:
                 PositionNedYaw(n, e, d, yaw_deg), VelocityNedYaw(vn, ve, vd, yaw_deg)
             )
         except Exception as exc:
-            raise VehicleError(f"setpoint: not sent: {exc}") from exc
+            raise VehicleError(f"setpoint: not sent: {exc}", VehicleErrorKind.NOT_SENT) from exc
 
     async def send_vision_position(
         self, pos_world_m: NDArray[np.float64], quat_world_body: NDArray[np.float64], t_mono_s: float
@@ -254,8 +392,17 @@ class MavsdkVehicle:
         msg = VisionPositionEstimate(
             int(t_mono_s * 1e6), PositionBody(x, y, z), AngleBody(roll, pitch, yaw), Covariance([math.nan])
         )
-        async with asyncio.timeout(self.command_timeout_s):
-            await self._mocap.set_vision_position_estimate(msg)
+        if self._mocap is None:
+            raise VehicleError("vision estimate: not connected", VehicleErrorKind.NOT_CONNECTED)
+        try:
+            async with asyncio.timeout(self.command_timeout_s):
+                await self._mocap.set_vision_position_estimate(msg)
+        except TimeoutError:
+            raise VehicleError(
+                f"vision estimate: not sent within {self.command_timeout_s:g} s", VehicleErrorKind.TIMEOUT
+            ) from None
+        except Exception as exc:  # MAVSDK's MocapError (and anything else the binding raises)
+            raise VehicleError(f"vision estimate: not sent: {exc}", VehicleErrorKind.NOT_SENT) from exc
 
     async def odometry_samples(self) -> AsyncIterator[OdometrySample]:
         """PX4's own estimate (ODOMETRY) as world-frame samples, stamped on arrival."""
@@ -273,4 +420,8 @@ class MavsdkVehicle:
             with contextlib.suppress(Exception):
                 self._mavsdk.destroy()
             self._mavsdk = None
+        if self._guard is not None:
+            self._guard.close()
+            self._guard = None
+            await asyncio.sleep(0)  # let the transports release the port
         self.state.connected = False

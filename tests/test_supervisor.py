@@ -12,6 +12,7 @@ from quadnav_onboard.daemon.config import SafetyConfig
 from quadnav_onboard.daemon.supervisor import (
     ExitCode,
     FlightSnapshot,
+    FrozenPositionWatch,
     Response,
     StopReason,
     check_depth_frame,
@@ -19,12 +20,14 @@ from quadnav_onboard.daemon.supervisor import (
     check_odometry,
     check_start_inside,
     check_vehicle_ready,
+    link_quiet,
     response_for,
 )
 from quadnav_onboard.frames import quat_from_yaw
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
-from quadnav_onboard.vehicle import VehicleState
+from quadnav_onboard.vehicle import MAV_STATE_EMERGENCY, VehicleState
+from quadnav_onboard.vehicle_binding import Candidate, SourceChange
 
 NOW = 100.0
 CFG = SafetyConfig()
@@ -105,6 +108,96 @@ def test_exit_codes_tell_success_abort_refusal_crash_and_error_apart() -> None:
     assert len({int(c) for c in ExitCode}) == len(ExitCode)
 
 
+BOUND = Candidate(1, 1, ("127.0.0.1", 40001))
+OTHER = Candidate(1, 1, ("127.0.0.1", 40002))
+
+
+def with_vehicle(**fields: object) -> FlightSnapshot:
+    snap = healthy()
+    for k, v in fields.items():
+        setattr(snap.vehicle, k, v)
+    return snap
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {"system_status": MAV_STATE_EMERGENCY},
+        {"tilt_rad": math.radians(80.0)},
+        {"landed": True},
+    ],
+    ids=["emergency", "tilt", "landed-mid-mission"],
+)
+def test_what_the_vehicle_reports_of_a_crash_is_a_crash_before_anything_else(fields: dict) -> None:
+    snap = with_vehicle(**fields, armed=False)  # a crashed PX4 also disarms; the crash names it
+    snap = dataclasses.replace(snap, pos_world_m=np.array([1.0, 0.0, 0.0]))  # and it lies on the floor
+    found = check_in_flight(snap, CFG)
+    assert found is not None and found[0] is StopReason.CRASH, found
+    assert StopReason.CRASH.exit_code is ExitCode.CRASH
+
+
+def test_a_level_flight_and_a_landed_state_before_the_mission_are_no_crash() -> None:
+    assert check_in_flight(with_vehicle(tilt_rad=math.radians(20.0), system_status=4), CFG) is None
+    on_ground = dataclasses.replace(with_vehicle(landed=True), in_mission=False)
+    assert check_in_flight(on_ground, CFG) is None  # take-off starts on the ground
+
+
+def test_a_changed_link_source_is_a_link_fault_and_a_silent_link_outranks_it() -> None:
+    snap = with_vehicle(source_changed=SourceChange(NOW - 0.1, BOUND, OTHER))
+    found = check_in_flight(snap, CFG)
+    assert found is not None and found[0] is StopReason.LINK_SOURCE_CHANGED
+    snap.vehicle.t_last_msg_mono_s = NOW - 0.6
+    found = check_in_flight(snap, CFG)
+    assert found is not None and found[0] is StopReason.LINK_LOST
+
+
+def test_the_link_is_quiet_once_silent_longer_than_odometry_may_be_stale() -> None:
+    snap = healthy()
+    assert not link_quiet(snap, CFG)
+    snap.vehicle.t_last_msg_mono_s = NOW - CFG.stale_odometry_s - 0.01
+    assert link_quiet(snap, CFG)
+    assert check_in_flight(snap, CFG) is None  # quiet is not yet lost
+
+
+def test_sustained_vision_forward_failure_stops_a_brief_one_does_not() -> None:
+    assert check_in_flight(healthy(vision_forward_failing_s=CFG.link_timeout_s - 0.05), CFG) is None
+    found = check_in_flight(healthy(vision_forward_failing_s=CFG.link_timeout_s + 0.05), CFG)
+    assert found is not None and found[0] is StopReason.VISION_FORWARD_FAILED
+
+
+def test_a_frozen_position_is_bad_odometry() -> None:
+    found = check_in_flight(healthy(frozen_position="odometry frozen"), CFG)
+    assert found is not None and found[0] is StopReason.BAD_ODOMETRY
+
+
+def feed(watch: FrozenPositionWatch, cmd_speed_m_s: float, pos_speed_m_s: float, duration_s: float = 0.5):
+    for k in range(int(duration_s * 50) + 1):
+        t = k / 50
+        watch.add(t, np.array([cmd_speed_m_s * t, 0.0, 1.5]), np.array([pos_speed_m_s * t, 0.0, 1.5]))
+
+
+def test_a_position_that_stands_still_while_the_setpoint_moves_is_frozen() -> None:
+    w = FrozenPositionWatch("odometry")
+    feed(w, 1.0, 0.0)
+    assert w.verdict() is not None
+
+
+@pytest.mark.parametrize(("cmd", "pos"), [(1.0, 0.05), (0.0, 0.0), (0.2, 0.0)])
+def test_a_moving_position_or_a_still_setpoint_is_not_frozen(cmd: float, pos: float) -> None:
+    w = FrozenPositionWatch("odometry")
+    feed(w, cmd, pos)
+    assert w.verdict() is None
+
+
+def test_the_frozen_watch_needs_a_full_window_and_forgets_on_nan() -> None:
+    w = FrozenPositionWatch("odometry", window_s=0.3)
+    feed(w, 1.0, 0.0, duration_s=0.2)
+    assert w.verdict() is None
+    feed(w, 1.0, 0.0)
+    w.add(1.0, np.array([1.0, 0.0, 1.5]), np.full(3, math.nan))
+    assert w.verdict() is None
+
+
 # --- pre-flight ---------------------------------------------------------------------------------
 
 
@@ -150,6 +243,17 @@ def test_preflight_vehicle_needs_local_position_and_refuses_an_armed_vehicle() -
     assert check_vehicle_ready(v).ok
     v.armed = True
     assert "already armed" in check_vehicle_ready(v).detail
+
+
+def test_preflight_refuses_at_once_a_second_autopilot_or_a_changed_source() -> None:
+    for fields in ({"other_autopilots": (Candidate(2, 1, ("127.0.0.1", 40003)),)},
+                   {"source_changed": SourceChange(NOW, BOUND, OTHER)}):
+        v = VehicleState(connected=True, local_position_ok=True, binding=BOUND)
+        for k, val in fields.items():
+            setattr(v, k, val)
+        c = check_vehicle_ready(v)
+        assert not c.ok and not c.retry, c
+    assert check_vehicle_ready(VehicleState(connected=True, local_position_ok=True, binding=BOUND)).ok
 
 
 def test_preflight_path_start_must_be_inside_the_geofence() -> None:

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from quadnav_onboard import jit
 from quadnav_onboard.daemon.config import FlightConfig
 from quadnav_onboard.daemon.decide import Decider, Motion
 from quadnav_onboard.daemon.ladder import StopLadder
@@ -48,7 +49,7 @@ from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError
 from quadnav_onboard.sources.base import DepthFrame, DepthSource, OdometrySource
-from quadnav_onboard.vehicle import VehicleError, VehicleLink
+from quadnav_onboard.vehicle import VehicleError, VehicleErrorKind, VehicleLink
 
 __all__ = ["FlightDaemon"]
 
@@ -75,8 +76,12 @@ class FlightDaemon(StopLadder):
         crash_probe: Callable[[], bool] | None = None,
         notifier: Any = None,
         trigger: Any = None,
+        t_start_mono_s: float | None = None,
     ) -> None:
         super().__init__(cfg, vehicle=vehicle, recorder=SafeRecorder(recorder), notifier=notifier)
+        self.t_start_mono_s = time.monotonic() if t_start_mono_s is None else t_start_mono_s
+        """When the daemon started (the process, from the command line): READY is timed from it."""
+        self._kernels_at_arming: dict[str, int] | None = None
         self.path = path
         self.policy = policy
         self.depth_source = depth
@@ -147,6 +152,11 @@ class FlightDaemon(StopLadder):
                 loop.remove_signal_handler(sig)
             self._executor.shutdown(wait=False, cancel_futures=True)
             gc.unfreeze()  # a process that goes on (tests, the benchmark) collects as before
+            if self._kernels_at_arming is not None:
+                compiled = jit.compiled_since(self._kernels_at_arming)
+                self.stats.kernels_compiled_in_flight = compiled
+                if compiled:
+                    log.warning("kernels_compiled_in_flight", kernels=compiled)
         return self._finish()
 
     def _install_signals(self, loop: asyncio.AbstractEventLoop) -> list[int]:
@@ -191,6 +201,8 @@ class FlightDaemon(StopLadder):
             if self.stop_reason is not None:
                 return
             freeze_heap()
+            self.stats.ready_s = time.monotonic() - self.t_start_mono_s
+            log.info("ready", ready_s=round(self.stats.ready_s, 3), warmup_s=self.stats.warmup_s)
             self.notifier.ready()
             self.notifier.status("preflight passed; waiting for go")
             await self._until_stopped(self._wait_for_go())
@@ -224,8 +236,14 @@ class FlightDaemon(StopLadder):
             raise task.exception()  # type: ignore[misc]
 
     async def _connect(self, tg: asyncio.TaskGroup) -> None:
+        """Connect to the one vehicle on the link; more than one autopilot is a refusal."""
         self.phase = "connect"
-        await self.vehicle.connect()
+        try:
+            await self.vehicle.connect()
+        except VehicleError as exc:
+            if exc.kind is VehicleErrorKind.BINDING:
+                raise PreflightError(PreflightCheck("vehicle", False, str(exc), retry=False)) from exc
+            raise
         self._background.append(tg.create_task(self.watch_vehicle(), name="telemetry"))
 
     async def _preflight(self) -> None:
@@ -246,18 +264,18 @@ class FlightDaemon(StopLadder):
                     log.info("preflight_check", check=c.name, ok=True, detail=c.detail)
                 self.recorder.event(now, "preflight", "all checks passed")
                 return
-            hard = [c for c in failed if c.name == "path" or "already armed" in c.detail]
+            hard = [c for c in failed if not c.retry]
             if hard or now > deadline:
                 raise PreflightError((hard or failed)[0])
             await asyncio.sleep(0.05)
 
-    def _input_checks(self, now: float) -> list[PreflightCheck]:
+    def _input_checks(self, now: float, allow_armed: bool = False) -> list[PreflightCheck]:
         """Depth, odometry, vehicle health and path: run before READY and again right before arming."""
         cfg = self.cfg
         return [
             check_depth_frame(self.latest_depth.value, now, cfg.safety.stale_depth_s, self.preprocess_cfg),
             check_odometry(self.latest_odom.value, now, cfg.safety.stale_odometry_s),
-            check_vehicle_ready(self.vehicle.state),
+            check_vehicle_ready(self.vehicle.state, allow_armed),
             check_start_inside(self.path.start_m, cfg.safety),
         ]
 
@@ -281,7 +299,9 @@ class FlightDaemon(StopLadder):
                 "the model was trained with the moving setpoint advancing one primitive per step",
             )
         try:
+            t0 = time.monotonic()
             q = self._test_decision()
+            self.stats.warmup_s = time.monotonic() - t0
         except Exception as exc:
             return PreflightCheck("model", False, f"test inference failed: {exc}")
         if q.shape != (self.prims.n_actions,) or not np.all(np.isfinite(q)):
@@ -295,8 +315,13 @@ class FlightDaemon(StopLadder):
             if sh.enabled
             else "shield off"
         )
+        kernels = jit.signature_counts()
         return PreflightCheck(
-            "model", True, f"{pol.n_actions} actions of {self.prims.scale_m} m, sha256 {sha}, {shield}"
+            "model",
+            True,
+            f"{pol.n_actions} actions of {self.prims.scale_m} m, sha256 {sha}, {shield}; warm-up "
+            f"{self.stats.warmup_s:.2f} s ({len(kernels)} kernels, {sum(kernels.values())} signatures "
+            "compiled or loaded from cache)",
         )
 
     def _test_decision(self) -> np.ndarray:
@@ -308,8 +333,11 @@ class FlightDaemon(StopLadder):
         frame = DepthFrame(np.full((240, 424), 5000, np.uint16), time.monotonic())
         start = np.asarray(self.path.start_m, dtype=np.float64)
         motion = Motion(start, np.zeros(3), start, np.zeros(3), float(self.path.yaw_at(0.0)))
-        prepared = scratch.prepare(frame, scratch.snapshot())
-        return scratch.decide(prepared, np.zeros(3), "full", motion).q
+        q = np.zeros(self.prims.n_actions)
+        for path in ("full", "prepared"):  # both ways a step takes its frame
+            prepared = scratch.prepare(frame, scratch.snapshot())
+            q = scratch.decide(prepared, np.zeros(3), path, motion).q
+        return q
 
     async def _wait_for_go(self) -> None:
         """Wait for the operator's go. For a pilot's switch to OFFBOARD, stream the vehicle's current
@@ -343,12 +371,10 @@ class FlightDaemon(StopLadder):
         # The go may come minutes after preflight: every input must still be healthy to fly. (A
         # pilot who armed and switched to OFFBOARD as the go has armed the vehicle on purpose.)
         pilot_armed = self.vehicle.state.armed
-        failed = [
-            c for c in self._input_checks(time.monotonic())
-            if not c.ok and not (pilot_armed and c.name == "vehicle")
-        ]
+        failed = [c for c in self._input_checks(time.monotonic(), allow_armed=pilot_armed) if not c.ok]
         if failed:
             raise PreflightError(failed[0])
+        self._kernels_at_arming = jit.signature_counts()  # nothing may compile from here on
         self.flying = True
         if not self.vehicle.state.armed:
             await self.vehicle.arm()

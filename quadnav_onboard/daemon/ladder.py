@@ -2,7 +2,9 @@
 
 Mixed into :class:`quadnav_onboard.daemon.app.FlightDaemon`. The ladder: stop streaming; hold;
 land (if configured); disarm (if configured). Pilot takeover and link loss release the vehicle
-instead (no command at all), so the daemon never fights a pilot or PX4's own failsafe.
+instead (no command at all), so the daemon never fights a pilot or PX4's own failsafe; a link
+that is silent when the ladder starts, or falls silent during it, releases it too (nothing is sent
+into a dead link, and no land timeout is waited out).
 """
 
 from __future__ import annotations
@@ -90,10 +92,10 @@ class StopLadder(Loops):
         if not self.flying:
             return
         if response_for(reason) is Response.RELEASE:
-            log.warning("stop_release", reason=reason.value, detail="not commanding: pilot/PX4 in charge")
-            self.recorder.event(
-                time.monotonic(), "release", "stopped commanding the vehicle", reason=reason.value
-            )
+            self._release(reason, "not commanding: pilot/PX4 in charge")
+            return
+        if not self._link_alive():
+            self._release(reason, "the vehicle's link is silent: no commands into a dead link")
             return
         await self.command_hold()
         land = (
@@ -103,7 +105,9 @@ class StopLadder(Loops):
         )
         if not land:
             return
-        await asyncio.sleep(self.cfg.safety.hold_before_land_s)
+        if not await self._hold_for(self.cfg.safety.hold_before_land_s):
+            self._release(reason, "the vehicle's link fell silent during the hold: land not sent")
+            return
         if self.vehicle.state.mode not in ("HOLD", "OFFBOARD") and self.vehicle.state.armed:
             log.warning("land_skipped", mode=self.vehicle.state.mode, detail="pilot took over during hold")
             return
@@ -134,8 +138,32 @@ class StopLadder(Loops):
                 log.info("landed", armed=st.armed)
                 self.recorder.event(time.monotonic(), "landed", "on the ground", armed=st.armed)
                 return
+            if not self._link_alive():
+                log.error("land_unconfirmed", detail="the vehicle's link fell silent while landing")
+                self.recorder.event(time.monotonic(), "release", "link silent while landing")
+                return
             await asyncio.sleep(0.05)
         log.error("land_timeout", timeout_s=self.cfg.safety.land_timeout_s)
+
+    def _link_alive(self) -> bool:
+        """Something was heard from the vehicle within ``safety.link_timeout_s``."""
+        age = time.monotonic() - self.vehicle.state.t_last_msg_mono_s
+        return age <= self.cfg.safety.link_timeout_s
+
+    async def _hold_for(self, duration_s: float) -> bool:
+        """Wait ``duration_s`` in the hold; False as soon as the link falls silent."""
+        deadline = time.monotonic() + duration_s
+        while (left := deadline - time.monotonic()) > 0:
+            if not self._link_alive():
+                return False
+            await asyncio.sleep(min(0.05, left))
+        return self._link_alive()
+
+    def _release(self, reason: StopReason, why: str) -> None:
+        log.warning("stop_release", reason=reason.value, detail=why)
+        self.recorder.event(
+            time.monotonic(), "release", f"stopped commanding the vehicle: {why}", reason=reason.value
+        )
 
     def _close_partial_step(self, reason: StopReason) -> None:
         p = self.pending_step

@@ -22,7 +22,13 @@ from quadnav_onboard.daemon.config import FlightConfig
 from quadnav_onboard.daemon.decide import DecisionPath, PreparedFrame
 from quadnav_onboard.daemon.stats import LatencyStats, Latest
 from quadnav_onboard.daemon.summary import NullNotifier
-from quadnav_onboard.daemon.supervisor import FlightSnapshot, StopReason, check_in_flight
+from quadnav_onboard.daemon.supervisor import (
+    FlightSnapshot,
+    FrozenPositionWatch,
+    StopReason,
+    check_in_flight,
+    link_quiet,
+)
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.preprocess import DepthFrameError, validate_depth_mm
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
@@ -58,6 +64,19 @@ class RunStats:
         """Frames only checked, too early before a step boundary to be used (``prepare_within_s``)."""
         self.odometry_samples = 0
         self.setpoints = 0
+        self.vision_forwards = 0
+        """Vision estimates forwarded to PX4."""
+        self.vision_forward_failures = 0
+        """Vision forwards that failed (the link refused or could not send them)."""
+        self.warmup_s: float | None = None
+        """Preflight's test decisions: compiling (or loading from cache) every kernel and the
+        network's first call, before anything arms."""
+        self.ready_s: float | None = None
+        """Daemon start -> READY (preflight passed)."""
+        self.kernels_compiled_in_flight: dict[str, list[str]] = {}
+        """Kernels that compiled a new signature after arming, and those signatures (none expected)."""
+        self.stops_deferred_for_link = 0
+        """Stops found while the link was quiet, held until the link's verdict."""
 
     def count_decision(self, path: DecisionPath, frame_age_s: float) -> None:
         self.decision_paths[path] += 1
@@ -94,6 +113,18 @@ class Loops:
         self.next_step_mono: float | None = None
         """When the mission's next step boundary falls (monotonic s); None outside the mission."""
         self.stats = RunStats()
+        self.last_setpoint_world_m: np.ndarray | None = None
+        """The newest setpoint sent (world, m), shape (3,)."""
+        self.t_forward_failing_since: float | None = None
+        """When the current run of failed vision forwards began (monotonic s); None when the
+        last forward went out."""
+        self._forward_streak = 0
+        self.frozen_watches = (
+            FrozenPositionWatch("odometry"),
+            FrozenPositionWatch("PX4's position estimate"),
+        )
+        self.deferred_stop: tuple[StopReason, str] | None = None
+        """A stop found while the link was quiet, waiting for the link's verdict."""
 
     # --- stop requests -------------------------------------------------------------------------
 
@@ -233,13 +264,39 @@ class Loops:
                 self.recorder.odometry(s.t_arrival_mono_s, s.pos_world_m, s.quat_world_body, s.vel_world_m_s)
                 if fwd and s.t_arrival_mono_s - t_fwd >= min_dt and self.vehicle.state.connected:
                     t_fwd = s.t_arrival_mono_s
-                    with contextlib.suppress(VehicleError, TimeoutError):
-                        await self.vehicle.send_vision_position(s.pos_world_m, s.quat_world_body, t_fwd)
+                    await self._forward_vision(s)
         except asyncio.CancelledError:
             raise
         except Exception as exc:
             log.error("odometry_source_failed", error=f"{type(exc).__name__}: {exc}")
             self.recorder.event(time.monotonic(), "source_failed", f"odometry: {exc}")
+
+    async def _forward_vision(self, s: OdometrySample) -> None:
+        """Forward one pose to PX4's estimator. A failure is counted and logged (the first of a run
+        and the recovery); it never ends the ingest. The supervisor stops the flight only when
+        every forward has failed for longer than ``link_timeout_s``."""
+        try:
+            await self.vehicle.send_vision_position(s.pos_world_m, s.quat_world_body, s.t_arrival_mono_s)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # VehicleError; anything else a link raises is counted the same
+            self.stats.vision_forward_failures += 1
+            self._forward_streak += 1
+            if self.t_forward_failing_since is None:
+                self.t_forward_failing_since = s.t_arrival_mono_s
+                kind = exc.kind.value if isinstance(exc, VehicleError) else type(exc).__name__
+                log.error("vision_forward_failed", error=str(exc), kind=kind)
+                self.recorder.event(time.monotonic(), "vision_forward_failed", str(exc), kind=kind)
+            return
+        self.stats.vision_forwards += 1
+        if self.t_forward_failing_since is not None:
+            log.warning(
+                "vision_forward_recovered",
+                failed=self._forward_streak,
+                after_s=round(s.t_arrival_mono_s - self.t_forward_failing_since, 3),
+            )
+            self.t_forward_failing_since = None
+            self._forward_streak = 0
 
     async def watch_vehicle(self) -> None:
         try:
@@ -292,6 +349,7 @@ class Loops:
                 log.error("setpoint_failed", error=str(exc))
                 continue
             t_sent = time.monotonic()
+            self.last_setpoint_world_m = pos
             self.stats.setpoints += 1
             if last_sent is not None:
                 self.stats.setpoint_interval.add(t_sent - last_sent)
@@ -322,7 +380,28 @@ class Loops:
             inference_s=(now - running) if running is not None else self.last_inference_s,
             crashed=bool(probe()) if probe is not None else False,
             depth_error=self.depth_error,
+            frozen_position=self._frozen_verdict(now, pos),
+            vision_forward_failing_s=(
+                0.0 if self.t_forward_failing_since is None else now - self.t_forward_failing_since
+            ),
         )
+
+    def _frozen_verdict(self, now: float, odom_pos: np.ndarray) -> str | None:
+        """Feed the frozen-position watches (the daemon's odometry, PX4's estimate) while the
+        mission streams setpoints; the first verdict, if any."""
+        cmd = self.last_setpoint_world_m
+        if not (self.in_mission and self.streaming) or cmd is None:
+            for w in self.frozen_watches:
+                w.reset()
+            return None
+        odom_w, px4_w = self.frozen_watches
+        odom_w.add(now, cmd, odom_pos)
+        st = self.vehicle.state
+        if now - st.t_last_msg_mono_s <= self.cfg.safety.stale_odometry_s:  # fresh telemetry only
+            px4_w.add(now, cmd, st.pos_world_m)
+        else:
+            px4_w.reset()
+        return odom_w.verdict() or px4_w.verdict()
 
     async def supervise(self) -> None:
         """In-flight checks at ``safety.check_rate_hz``; also feeds the systemd watchdog."""
@@ -344,6 +423,8 @@ class Loops:
                 continue
             snap = self.snapshot(now)
             found = check_in_flight(snap, self.cfg.safety)
+            if self._defer_for_link(found, snap):
+                continue
             if found is None:
                 continue
             reason, detail = found
@@ -353,3 +434,34 @@ class Loops:
             elif reason is StopReason.STALE_ODOMETRY:
                 threshold = snap.t_odom_mono_s + self.cfg.safety.stale_odometry_s
             self.request_stop(reason, detail, threshold)
+
+    def _defer_for_link(self, found: tuple[StopReason, str] | None, snap: FlightSnapshot) -> bool:
+        """True while a stop found on a quiet link waits for the link's verdict.
+
+        Odometry and telemetry may ride the vehicle's link: when it dies, stale odometry is seen
+        before the link timeout, and commanding hold and land into a dead link only fails. So a
+        stop found while nothing is heard from the vehicle (``link_quiet``) pauses the setpoints
+        and waits: the link silent past ``link_timeout_s`` is ``link_lost`` (release, no
+        commands); the link back means the stop found then (or, if none, streaming resumes).
+        A crash is never held back."""
+        if found is not None and found[0] not in (StopReason.CRASH, StopReason.LINK_LOST) and link_quiet(
+            snap, self.cfg.safety
+        ):
+            if self.deferred_stop is None:
+                self.deferred_stop = found
+                self.stats.stops_deferred_for_link += 1
+                self.streaming = False
+                log.warning(
+                    "stop_deferred",
+                    reason=found[0].value,
+                    detail=found[1],
+                    link_age_s=round(snap.t_mono_s - snap.vehicle.t_last_msg_mono_s, 3),
+                    why="the vehicle's link is quiet: waiting for link_lost or the link back",
+                )
+            return True
+        if self.deferred_stop is not None:
+            self.deferred_stop = None
+            if found is None and self.trajectory is not None:
+                log.warning("stop_deferral_cleared", detail="link back, nothing to stop for: streaming again")
+                self.streaming = True
+        return False

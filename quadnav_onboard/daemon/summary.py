@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from quadnav_onboard.logs import get_logger
@@ -58,8 +58,13 @@ class FlightSummary:
     """Interval between setpoints sent: n, p50, p99, max (ms)."""
     hold_reaction_ms: float | None
     """Stale-input threshold -> hold command (ms), when the flight stopped for stale input."""
+    vision_forwards: dict[str, int]
+    """Mocap poses forwarded to PX4's estimator: {"sent": n, "failed": n}."""
     model_sha256: str
     """SHA-256 of the checkpoint flown."""
+    startup: dict[str, Any] = field(default_factory=dict)
+    """Start -> READY (s), preflight's warm-up (s), and the kernels compiled after arming (none
+    expected): {"ready_s": s, "warmup_s": s, "kernels_compiled_in_flight": {name: n}}."""
 
     @classmethod
     def build(
@@ -99,7 +104,13 @@ class FlightSummary:
             },
             setpoint_interval_ms=lat(stats.setpoint_interval),
             hold_reaction_ms=None if hold is None else _r(hold * 1e3),
+            vision_forwards={"sent": stats.vision_forwards, "failed": stats.vision_forward_failures},
             model_sha256=model_sha256,
+            startup={
+                "ready_s": None if stats.ready_s is None else _r(stats.ready_s, 3),
+                "warmup_s": None if stats.warmup_s is None else _r(stats.warmup_s, 3),
+                "kernels_compiled_in_flight": dict(stats.kernels_compiled_in_flight),
+            },
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -130,6 +141,14 @@ class FlightSummary:
         ]
         if self.hold_reaction_ms is not None:
             lines.append(f"stale input -> hold: {self.hold_reaction_ms} ms")
+        st = self.startup
+        if st.get("ready_s") is not None:
+            lines.append(f"start -> ready: {st['ready_s']} s (warm-up {st['warmup_s']} s)")
+        if st.get("kernels_compiled_in_flight"):
+            lines.append(f"kernels compiled after arming: {st['kernels_compiled_in_flight']}")
+        if self.vision_forwards["failed"]:
+            v = self.vision_forwards
+            lines.append(f"vision forwards to PX4: {v['sent']} sent, {v['failed']} failed")
         return lines
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -18,11 +19,13 @@ from numpy.typing import NDArray
 from quadnav_onboard.daemon.config import SafetyConfig
 from quadnav_onboard.preprocess import DepthFrameError, PreprocessConfig, preprocess_depth_mm
 from quadnav_onboard.sources.base import DepthFrame, OdometrySample
-from quadnav_onboard.vehicle import VehicleState
+from quadnav_onboard.vehicle import MAV_STATE_EMERGENCY, VehicleState
 
 __all__ = [
+    "CRASH_TILT_RAD",
     "ExitCode",
     "FlightSnapshot",
+    "FrozenPositionWatch",
     "PreflightCheck",
     "PreflightError",
     "Response",
@@ -31,8 +34,14 @@ __all__ = [
     "check_in_flight",
     "check_odometry",
     "check_vehicle_ready",
+    "crash_evidence",
+    "link_quiet",
     "response_for",
 ]
+
+CRASH_TILT_RAD = math.radians(60.0)
+"""A tilt past this is a crash: the primitives command accelerations of ~1 m/s2 (a few degrees
+of tilt); PX4's failure detector trips at the same angle (FD_FAIL_R / FD_FAIL_P, 60 deg)."""
 
 
 class ExitCode(enum.IntEnum):
@@ -47,7 +56,8 @@ class ExitCode(enum.IntEnum):
     SAFE_ABORT = 3
     """The supervisor or the operator stopped the flight; it ended holding or landed."""
     CRASH = 4
-    """A collision was reported (dry run: the emulator's crash)."""
+    """A crash: the vehicle reported an emergency, a tilt or a touchdown no primitive commands (or,
+    in a dry run, the emulator's collision)."""
 
 
 class StopReason(enum.Enum):
@@ -57,10 +67,15 @@ class StopReason(enum.Enum):
     STEP_LIMIT = "step_limit"
     CRASH = "crash"
     LINK_LOST = "link_lost"
+    LINK_SOURCE_CHANGED = "link_source_changed"
+    """The bound vehicle's system ID was heard from another address."""
     PILOT_TAKEOVER = "pilot_takeover"
     DISARMED = "disarmed"
     STALE_ODOMETRY = "stale_odometry"
     BAD_ODOMETRY = "bad_odometry"
+    """Not finite, or a position that does not move while the vehicle is commanded to."""
+    VISION_FORWARD_FAILED = "vision_forward_failed"
+    """Forwarding mocap to PX4's estimator failed for longer than ``link_timeout_s``."""
     STALE_DEPTH = "stale_depth"
     BAD_DEPTH = "bad_depth"
     GEOFENCE = "geofence"
@@ -96,7 +111,9 @@ class Response(enum.Enum):
 
 
 def response_for(reason: StopReason) -> Response:
-    """Pilot takeover and link loss release the vehicle; everything else climbs the ladder."""
+    """Pilot takeover, link loss and a disarm release the vehicle; everything else climbs the
+    ladder (a changed link source too: commands reach only the bound address, and the ladder
+    releases instead if that address has fallen silent)."""
     if reason in (StopReason.PILOT_TAKEOVER, StopReason.LINK_LOST, StopReason.DISARMED):
         return Response.RELEASE
     return Response.LADDER
@@ -128,6 +145,29 @@ class FlightSnapshot:
     """A collision was reported."""
     depth_error: str | None = None
     """The newest depth frame was unusable (message), else None."""
+    frozen_position: str | None = None
+    """A position source does not move while the vehicle is commanded to (message), else None."""
+    vision_forward_failing_s: float = 0.0
+    """How long (s) every vision forward to PX4 has failed (0 when the last one went out)."""
+
+
+def crash_evidence(v: VehicleState, in_mission: bool) -> str | None:
+    """What the vehicle itself reports that only a crash explains, else None: PX4's emergency
+    state, a tilt past :data:`CRASH_TILT_RAD`, or a touchdown in the middle of the mission."""
+    if v.system_status == MAV_STATE_EMERGENCY:
+        return "PX4 reports an emergency (MAV_STATE_EMERGENCY)"
+    if v.tilt_rad > CRASH_TILT_RAD:
+        return f"tilted {math.degrees(v.tilt_rad):.0f} deg > {math.degrees(CRASH_TILT_RAD):.0f} deg"
+    if in_mission and v.landed:
+        return "PX4 reports the vehicle on the ground in the middle of the mission"
+    return None
+
+
+def link_quiet(s: FlightSnapshot, cfg: SafetyConfig) -> bool:
+    """Nothing heard from the vehicle for longer than odometry may be stale: another stop found
+    now may be the link dying (odometry and telemetry ride it), so it waits for the link's verdict
+    (back: that stop; silent past ``link_timeout_s``: ``link_lost``)."""
+    return s.t_mono_s - s.vehicle.t_last_msg_mono_s > min(cfg.stale_odometry_s, cfg.link_timeout_s)
 
 
 def check_in_flight(s: FlightSnapshot, cfg: SafetyConfig) -> tuple[StopReason, str] | None:
@@ -135,9 +175,16 @@ def check_in_flight(s: FlightSnapshot, cfg: SafetyConfig) -> tuple[StopReason, s
     v = s.vehicle
     if s.crashed:
         return StopReason.CRASH, "collision reported"
+    crash = crash_evidence(v, s.in_mission)
+    if crash is not None:
+        return StopReason.CRASH, crash
     link_age = s.t_mono_s - v.t_last_msg_mono_s
     if link_age > cfg.link_timeout_s:
         return StopReason.LINK_LOST, f"nothing from the vehicle for {link_age:.2f} s > {cfg.link_timeout_s} s"
+    if v.source_changed is not None:
+        return StopReason.LINK_SOURCE_CHANGED, (
+            f"vehicle {v.source_changed.bound} heard from another address: {v.source_changed.heard}"
+        )
     if not v.armed:
         return StopReason.DISARMED, "the vehicle disarmed"
     if v.mode != s.expected_mode:
@@ -147,6 +194,13 @@ def check_in_flight(s: FlightSnapshot, cfg: SafetyConfig) -> tuple[StopReason, s
         return StopReason.STALE_ODOMETRY, f"odometry {odom_age:.3f} s old > {cfg.stale_odometry_s} s"
     if not np.all(np.isfinite(s.pos_world_m)):
         return StopReason.BAD_ODOMETRY, f"odometry position {np.asarray(s.pos_world_m).tolist()} not finite"
+    if s.frozen_position is not None:
+        return StopReason.BAD_ODOMETRY, s.frozen_position
+    if s.vision_forward_failing_s > cfg.link_timeout_s:
+        return StopReason.VISION_FORWARD_FAILED, (
+            f"every vision forward to PX4 failed for {s.vision_forward_failing_s:.2f} s "
+            f"> {cfg.link_timeout_s} s"
+        )
     depth_age = s.t_mono_s - s.t_depth_mono_s
     if depth_age > cfg.stale_depth_s:
         return StopReason.STALE_DEPTH, f"depth {depth_age:.3f} s old > {cfg.stale_depth_s} s"
@@ -168,6 +222,57 @@ def check_in_flight(s: FlightSnapshot, cfg: SafetyConfig) -> tuple[StopReason, s
     return None
 
 
+class FrozenPositionWatch:
+    """Is a position source stuck while the vehicle is commanded to move?
+
+    Fed (time, commanded setpoint, reported position) at the supervisor's rate. Frozen: over the
+    last ``window_s`` the setpoint travelled at least ``min_commanded_m`` while the reported
+    position stayed within ``max_still_m`` of where the window began. A live estimate (mocap or
+    PX4's EKF) moves by more than a millimetre under any commanded motion, so identical positions
+    with fresh timestamps are a frozen estimator.
+    """
+
+    def __init__(
+        self, name: str, window_s: float = 0.3, min_commanded_m: float = 0.15, max_still_m: float = 1e-3
+    ) -> None:
+        self.name = name
+        self.window_s = window_s
+        self.min_commanded_m = min_commanded_m
+        self.max_still_m = max_still_m
+        self._samples: deque[tuple[float, NDArray[np.float64], NDArray[np.float64]]] = deque()
+
+    def reset(self) -> None:
+        self._samples.clear()
+
+    def add(
+        self, t_mono_s: float, commanded_world_m: NDArray[np.float64], reported_world_m: NDArray[np.float64]
+    ) -> None:
+        cmd = np.asarray(commanded_world_m, dtype=np.float64)
+        rep = np.asarray(reported_world_m, dtype=np.float64)
+        if not (np.all(np.isfinite(cmd)) and np.all(np.isfinite(rep))):
+            self.reset()
+            return
+        self._samples.append((t_mono_s, cmd, rep))
+        while len(self._samples) > 2 and self._samples[1][0] <= t_mono_s - self.window_s:
+            self._samples.popleft()
+
+    def verdict(self) -> str | None:
+        """A message when frozen, else None."""
+        if len(self._samples) < 3 or self._samples[-1][0] - self._samples[0][0] < self.window_s:
+            return None
+        cmds = np.stack([c for _, c, _ in self._samples])
+        reps = np.stack([r for _, _, r in self._samples])
+        commanded = float(np.linalg.norm(np.diff(cmds, axis=0), axis=1).sum())
+        moved = float(np.linalg.norm(reps - reps[0], axis=1).max())
+        if commanded >= self.min_commanded_m and moved <= self.max_still_m:
+            span = self._samples[-1][0] - self._samples[0][0]
+            return (
+                f"{self.name} frozen: moved {moved * 1e3:.1f} mm in {span:.2f} s while the setpoint "
+                f"moved {commanded:.2f} m"
+            )
+        return None
+
+
 # --- pre-flight ---------------------------------------------------------------------------------
 
 
@@ -178,6 +283,8 @@ class PreflightCheck:
     name: str
     ok: bool
     detail: str
+    retry: bool = True
+    """A failure that time may fix (sensors warming up, EKF converging); False: refuse at once."""
 
 
 class PreflightError(RuntimeError):
@@ -223,14 +330,32 @@ def check_odometry(sample: OdometrySample | None, now_mono_s: float, max_age_s: 
     return PreflightCheck("odometry", True, f"at {np.round(pos, 2).tolist()} m, {age * 1e3:.0f} ms old")
 
 
-def check_vehicle_ready(v: VehicleState) -> PreflightCheck:
-    """PX4 connected, local position OK, disarmed and on the ground."""
+def check_vehicle_ready(v: VehicleState, allow_armed: bool = False) -> PreflightCheck:
+    """PX4 connected, the only autopilot on the link, local position OK, disarmed (unless
+    ``allow_armed``: a pilot who armed and switched to OFFBOARD as the go)."""
     if not v.connected:
         return PreflightCheck("vehicle", False, "not connected")
+    if v.source_changed is not None:
+        return PreflightCheck(
+            "vehicle",
+            False,
+            f"vehicle {v.source_changed.bound} heard from another address: {v.source_changed.heard}",
+            retry=False,
+        )
+    if v.other_autopilots:
+        who = "; ".join(str(c) for c in v.other_autopilots)
+        return PreflightCheck(
+            "vehicle",
+            False,
+            f"more than one autopilot on the link (also {who}); refusing to pick one",
+            retry=False,
+        )
     if not v.local_position_ok:
         return PreflightCheck("vehicle", False, "PX4 does not report local position OK")
-    if v.armed:
-        return PreflightCheck("vehicle", False, "the vehicle is already armed; refusing to take it over")
+    if v.armed and not allow_armed:
+        return PreflightCheck(
+            "vehicle", False, "the vehicle is already armed; refusing to take it over", retry=False
+        )
     return PreflightCheck("vehicle", True, f"mode {v.mode}, local position OK")
 
 
@@ -239,7 +364,9 @@ def check_start_inside(start_world_m: Sequence[float], cfg: SafetyConfig) -> Pre
     p = np.asarray(start_world_m, dtype=np.float64)
     lo, hi = np.asarray(cfg.geofence_min_m), np.asarray(cfg.geofence_max_m)
     if np.any(p < lo) or np.any(p > hi) or not (cfg.altitude_floor_m <= p[2] <= cfg.altitude_ceiling_m):
-        return PreflightCheck("path", False, f"path start {p.tolist()} is outside the geofence/altitude band")
+        return PreflightCheck(
+            "path", False, f"path start {p.tolist()} is outside the geofence/altitude band", retry=False
+        )
     return PreflightCheck("path", True, f"start {p.tolist()}")
 
 

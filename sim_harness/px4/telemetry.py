@@ -108,13 +108,34 @@ def _quat_ned(yaw_rad: float) -> list[float]:
     return [float(v) for v in quat_world_to_ned(quat_from_yaw(yaw_rad))]
 
 
+_ON_ITS_SIDE = np.array([math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0])
+"""Rolled 90 deg about the body's x axis (w, x, y, z): how a crashed quad lies."""
+
+
+def _attitude_world(s: VehicleSnapshot) -> NDArray[np.float64]:
+    """Body FLU -> world quaternion (w, x, y, z): level at the yaw in flight, on its side once
+    crashed (what a real vehicle's attitude estimate shows after an impact)."""
+    q = quat_from_yaw(s.yaw_rad)
+    if not s.crashed:
+        return q
+    w1, x1, y1, z1 = q
+    w2, x2, y2, z2 = _ON_ITS_SIDE
+    return np.array([
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    ])
+
+
 def local_position_ned(s: VehicleSnapshot) -> m.MAVLink_message:
     p, v = enu_to_ned(s.pos_world_m), enu_to_ned(s.vel_world_m_s)
     return m.MAVLink_local_position_ned_message(s.t_boot_ms, *map(float, p), *map(float, v))
 
 
 def attitude_quaternion(s: VehicleSnapshot) -> m.MAVLink_message:
-    return m.MAVLink_attitude_quaternion_message(s.t_boot_ms, *_quat_ned(s.yaw_rad), 0.0, 0.0, 0.0)
+    q = [float(v) for v in quat_world_to_ned(_attitude_world(s))]
+    return m.MAVLink_attitude_quaternion_message(s.t_boot_ms, *q, 0.0, 0.0, 0.0)
 
 
 def odometry(s: VehicleSnapshot) -> m.MAVLink_message:

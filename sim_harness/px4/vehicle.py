@@ -200,8 +200,9 @@ class Px4Vehicle:
             return
         self.crashed = True
         self.armed = False
-        self.state = QuadState.at_rest(np.array([*self.pos_world_m[:2], self.floor_z_m]))
-        self.landed_state = "ON_GROUND"
+        # stopped where it hit; from there it falls, motors off, and lies on the floor
+        self.state = QuadState.at_rest(self.pos_world_m.copy())
+        self.landed_state = "ON_GROUND" if self._on_floor() else "IN_AIR"
         self._event(t, "crash", f"crash: {why} at {np.round(self.pos_world_m, 2).tolist()}", severity=2)
 
     def _refuse(self, t: float, kind: str, message: str) -> CommandResult:
@@ -255,6 +256,7 @@ class Px4Vehicle:
     def tick(self, t: float, dt: float) -> None:
         """Advance the vehicle by ``dt`` seconds to time ``t`` (monotonic s)."""
         if self.crashed:
+            self._fall_after_crash(dt)
             return
         self._failsafes(t)
         prev = self.pos_world_m.copy()
@@ -276,6 +278,18 @@ class Px4Vehicle:
             self.crash(t, "collision with the world")
             return
         self._update_landed(t)
+
+    def _fall_after_crash(self, dt: float) -> None:
+        if self._on_floor():
+            self.state = QuadState.at_rest(np.array([*self.pos_world_m[:2], self.floor_z_m]))
+            self.landed_state = "ON_GROUND"
+            return
+        vel = self.vel_world_m_s.copy()
+        vel[2] -= _GRAVITY_M_S2 * dt
+        pos = self.state.pos_m[0] + vel * dt
+        if pos[2] <= self.floor_z_m:
+            pos[2], vel[:] = self.floor_z_m, 0.0
+        self.state = QuadState(pos[None, :], vel[None, :])
 
     def _ground_contact(self, t: float) -> None:
         pos, vel = self.state.pos_m[0], self.state.vel_m_s[0]
