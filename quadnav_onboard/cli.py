@@ -54,9 +54,8 @@ def _open_recorder(cfg: Any, metadata: dict[str, str]) -> Any:
         return None
     from quadnav_onboard.record.recorder import FlightRecorder
 
-    name = time.strftime("flight-%Y%m%d-%H%M%S", time.gmtime()) + ".mcap"
-    return FlightRecorder(
-        Path(cfg.record.directory) / name,
+    return FlightRecorder.new_in(  # a new file, named by the start time; never over another
+        cfg.record.directory,
         metadata=metadata,
         depth_decimation=cfg.record.depth_decimation,
         writer=cfg.record.writer,
@@ -134,6 +133,17 @@ def _notifier() -> SdNotifier:
     return SdNotifier.from_env()
 
 
+def _check_mission_path(args: argparse.Namespace, cfg: Any, path: Any, world: str | None) -> None:
+    """The mission against the path flown (the config's waypoints, or the dry run's world): raises
+    ConfigError naming the file, the key and the value (a goal radius reaching back to the start, a
+    waypoint outside the geofence or the altitude band)."""
+    from quadnav_onboard.daemon.config import check_mission_path
+
+    source = args.config or "<embedded defaults/sim.yaml>"
+    from_config = cfg.mission.waypoints_m is not None or world is None
+    check_mission_path(cfg, path, source, "mission.waypoints_m" if from_config else f"{world} path.waypoints")
+
+
 def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_path: Path) -> Any:
     import torch
 
@@ -158,6 +168,7 @@ def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_pa
             from quadnav_onboard.daemon.hardware import hardware_parts
 
             parts = hardware_parts(cfg, args.config or "config")
+        _check_mission_path(args, cfg, parts["path"], meta.get("world"))
         recorder = _open_recorder(cfg, meta)
         if recorder is not None:
             with contextlib.suppress(Exception):

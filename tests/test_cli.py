@@ -4,6 +4,7 @@ and no traceback; a dry run prints the paper's row or one JSON object."""
 from __future__ import annotations
 
 import json
+import random
 from pathlib import Path
 
 import pytest
@@ -60,6 +61,61 @@ def test_bad_config_files_are_refused_naming_file_key_value(
     assert code == 2 and str(cfg) in err
     for n in needles:
         assert n in err
+
+
+def test_a_config_of_random_bytes_is_refused_with_exit_2(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, model: Path
+) -> None:
+    """A binary file ended in a UnicodeDecodeError traceback and exit 1 (systemd would restart it)."""
+    cfg = tmp_path / "junk.yaml"
+    cfg.write_bytes(random.Random(1).randbytes(2048))
+    code, _, err = run(capsys, "--dry-run", "--config", str(cfg), "--model", str(model), "--log-format=json")
+    assert code == 2 and f"{cfg}: not a UTF-8 text file" in err
+
+
+def test_an_empty_config_is_refused_not_flown_on_the_defaults(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, model: Path
+) -> None:
+    """An empty file made a dry run fly on the dataclass defaults instead of the sim config."""
+    cfg = tmp_path / "empty.yaml"
+    cfg.write_text("")
+    code, _, err = run(capsys, "--dry-run", "--config", str(cfg), "--model", str(model), "--log-format=json")
+    assert code == 2 and f"{cfg}: the file is empty" in err
+
+
+@pytest.mark.parametrize(("radius", "value"), [(".inf", "inf"), ("9.0", "9.0")])
+def test_a_goal_radius_that_fakes_a_success_is_refused_before_arming(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, model: Path, radius: str, value: str
+) -> None:
+    """goal_radius_m: .inf armed, took off and reported goal_reached after 0 steps with exit 0."""
+    cfg = tmp_path / "f.yaml"
+    cfg.write_text(f"mission: {{waypoints_m: [[0, 0, 1], [5, 0, 1]], goal_radius_m: {radius}}}\n")
+    code, _, err = run(capsys, "--dry-run", "--config", str(cfg), "--model", str(model), "--log-format=json")
+    assert code == 2 and f"{cfg}: key 'mission.goal_radius_m': bad value {value}" in err
+
+
+def test_the_goal_radius_is_checked_against_the_dry_runs_world_path(tmp_path: Path) -> None:
+    """With the world's path (no waypoints in the config), the flown path is checked before the
+    record opens and the vehicle arms: a 3 m world leaves no room for a 2.8 m goal radius."""
+    import argparse
+    import dataclasses
+
+    from quadnav_onboard.cli import _check_mission_path
+    from quadnav_onboard.config import ConfigError
+    from quadnav_onboard.daemon.config import MissionConfig, default_sim_config
+    from sim_harness.world import load_world
+
+    world = tmp_path / "w.yaml"
+    world.write_text(WORLD)
+    cfg = default_sim_config()
+    args = argparse.Namespace(config=None)
+    _check_mission_path(args, cfg, load_world(world).path, str(world))
+    cfg = dataclasses.replace(cfg, mission=MissionConfig(goal_radius_m=2.8))
+    with pytest.raises(ConfigError) as info:
+        _check_mission_path(args, cfg, load_world(world).path, str(world))
+    msg = str(info.value)
+    assert "<embedded defaults/sim.yaml>: key 'mission.goal_radius_m': bad value 2.8" in msg
+    assert f"start-to-goal distance 3 m of {world} path.waypoints" in msg
 
 
 def test_a_real_flight_without_an_explicit_go_is_refused(
