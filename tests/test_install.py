@@ -119,3 +119,38 @@ def test_daemon_exits_2_before_connecting_when_the_extra_is_missing(
     assert "pip install 'quadnav[mocap]'" in err and "odometry.kind" in err
     assert "Traceback" not in err
     assert connects == []
+
+
+def _target_deps_script():  # scripts/ is not a package
+    import importlib.util as ilu
+
+    spec = ilu.spec_from_file_location("check_target_deps", REPO / "scripts" / "check_target_deps.py")
+    assert spec is not None and spec.loader is not None
+    module = ilu.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_target_check_resolves_the_runtime_set_with_the_makefile_torch() -> None:
+    """The ARM64 check asks for every runtime dependency but motioncapture, and CI's torch pin."""
+    script = _target_deps_script()
+    reqs = script.runtime_requirements(REPO / "pyproject.toml")
+    assert set(_names(reqs)) == set(_names(_pyproject()["project"]["dependencies"])) - {"motioncapture"}
+    assert script.torch_pin(REPO / "Makefile") == "torch==2.13.0"
+
+
+def test_target_check_platforms_and_wheel_tags() -> None:
+    """glibc 2.35 admits manylinux2014 and 2_17..2_35 wheels for aarch64; an x86-64 or source file is
+    not a wheel for the target."""
+    script = _target_deps_script()
+    tags = script.platform_tags("aarch64", "2.35")
+    assert tags[0] == "manylinux2014_aarch64" and tags[1] == "manylinux_2_17_aarch64"
+    assert tags[-1] == "manylinux_2_35_aarch64" and len(tags) == 1 + 19
+    ok = script.wheel_is_for_target
+    assert ok("torch-2.13.0-cp310-cp310-manylinux_2_28_aarch64.whl", "aarch64")
+    assert ok("numpy-2.2.6-cp310-cp310-manylinux_2_17_aarch64.manylinux2014_aarch64.whl", "aarch64")
+    assert ok("structlog-26.1.0-py3-none-any.whl", "aarch64")
+    assert not ok("motioncapture-1.1-cp310-cp310-manylinux_2_28_x86_64.whl", "aarch64")
+    assert not ok("motioncapture-1.1.tar.gz", "aarch64")
+    with pytest.raises(SystemExit, match=r"2\.N"):
+        script.platform_tags("aarch64", "2.5")
