@@ -19,7 +19,7 @@ import torch
 from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
 from quadnav_onboard.config import PrimitiveConfig, parse_config
 from quadnav_onboard.daemon.app import FlightDaemon
-from quadnav_onboard.daemon.config import FlightConfig, MissionConfig, SafetyConfig
+from quadnav_onboard.daemon.config import FlightConfig, MissionConfig, OdometrySourceConfig, SafetyConfig
 from quadnav_onboard.daemon.testing import (
     FakeDepthSource,
     FakeOdometrySource,
@@ -29,6 +29,7 @@ from quadnav_onboard.daemon.testing import (
 from quadnav_onboard.network import DQN, NetworkConfig
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy
+from quadnav_onboard.vehicle import VehicleError, VehicleErrorKind
 
 PATH = RoughPath(np.array([[0.0, 0.0, 1.0], [1.5, 0.0, 1.0]]), 1.0)
 FORWARD, LEFT_FORWARD = 4, 7
@@ -52,9 +53,14 @@ def forward_policy(tmp_path_factory: pytest.TempPathFactory) -> Policy:
 
 class Rig:
     def __init__(
-        self, policy: Policy, cfg: FlightConfig | None = None, path: RoughPath = PATH, **kw: object
+        self,
+        policy: Policy,
+        cfg: FlightConfig | None = None,
+        path: RoughPath = PATH,
+        vehicle: FakeVehicle | None = None,
+        **kw: object,
     ) -> None:
-        self.vehicle = FakeVehicle()
+        self.vehicle = vehicle or FakeVehicle()
         self.depth = FakeDepthSource(fps=30.0)
         self.odom = FakeOdometrySource(lambda: self.vehicle.pos_world_m, rate_hz=100.0)
         self.daemon = FlightDaemon(
@@ -434,3 +440,75 @@ def test_bench_daemon_thread_cpu_names_the_thread_that_worked() -> None:
     by_name = cpu.fractions(time.monotonic() - t0)
     assert by_name["busy-bench"] > 0.1
     assert by_name.get("idle-bench", 0.0) < 0.05
+
+
+class FlakyVisionVehicle(FakeVehicle):
+    """Vision forwards fail as ``fails(n)`` says for the n-th forward (as MAVSDK's MocapError does,
+    seen through the vehicle link: a VehicleError of kind NOT_SENT)."""
+
+    def __init__(self, fails) -> None:
+        super().__init__()
+        self.fails = fails
+        self.forwards = 0
+
+    async def send_vision_position(self, pos_world_m, quat_world_body, t_mono_s) -> None:
+        self.forwards += 1
+        if self.fails(self.forwards):
+            raise VehicleError("vision estimate: not sent: CONNECTION_ERROR", VehicleErrorKind.NOT_SENT)
+        self._log("vision")
+
+
+def forwarding_config() -> FlightConfig:
+    cfg = fast_config()
+    return dataclasses.replace(cfg, odometry=OdometrySourceConfig(kind="mocap", forward_to_px4=True))
+
+
+async def test_failed_vision_forwards_are_counted_and_the_flight_goes_on(forward_policy: Policy) -> None:
+    vehicle = FlakyVisionVehicle(lambda n: n % 10 == 0)  # one in ten fails
+    rig = Rig(forward_policy, forwarding_config(), vehicle=vehicle)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "goal_reached", s
+    assert s.vision_forwards["failed"] == vehicle.forwards // 10 > 0
+    assert s.vision_forwards["sent"] == vehicle.forwards - s.vision_forwards["failed"]
+
+
+async def test_a_sustained_vision_forward_failure_stops_the_flight(forward_policy: Policy) -> None:
+    vehicle = FlakyVisionVehicle(lambda n: False)
+    rig = Rig(forward_policy, forwarding_config(), vehicle=vehicle)
+    s = await rig.in_mission_then(lambda: setattr(vehicle, "fails", lambda n: True), min_steps=2)
+    assert s.stop_reason == "vision_forward_failed" and s.exit_code == 3, s
+    assert rig.commands()[-2:] == ["hold", "land"]
+    assert rig.daemon.stats.odometry_samples > vehicle.forwards - s.vision_forwards["sent"]  # ingest went on
+
+
+async def test_a_dead_link_with_odometry_on_it_is_link_lost_and_nothing_is_commanded(
+    forward_policy: Policy,
+) -> None:
+    """Odometry dies with the link: stale odometry is seen first, but the stop is link_lost, and
+    neither hold nor land is sent into the dead link."""
+    rig = Rig(forward_policy)
+
+    def cut() -> None:
+        rig.vehicle.link_up = False
+        rig.odom.paused = True
+
+    s = await rig.in_mission_then(cut, min_steps=2)
+    assert s.stop_reason == "link_lost" and s.exit_code == 3, s
+    assert rig.commands() == ["arm", "offboard_start"]
+    assert rig.daemon.stats.stops_deferred_for_link == 1
+
+
+async def test_a_link_that_comes_back_gets_the_stop_it_was_holding(forward_policy: Policy) -> None:
+    """A short silence with stale odometry: the stop waits for the link, which comes back; the
+    stop is then the stale odometry, with the ladder."""
+    rig = Rig(forward_policy)
+
+    async def blip() -> None:
+        rig.vehicle.link_up = False
+        rig.odom.paused = True
+        await rig.when(lambda: rig.daemon.deferred_stop is not None)
+        rig.vehicle.link_up = True
+
+    s = await rig.in_mission_then(lambda: asyncio.ensure_future(blip()), min_steps=2)
+    assert s.stop_reason == "stale_odometry", s
+    assert rig.commands()[-2:] == ["hold", "land"]
