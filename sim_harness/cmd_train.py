@@ -28,9 +28,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+EXIT_INTERRUPTED = 130
+"""Exit status after Ctrl-C (128 + SIGINT), the run saved and resumable."""
+
+
 def run(args: argparse.Namespace) -> int:
     from sim_harness.rl.config import config_from_args
-    from sim_harness.rl.train import train
+    from sim_harness.rl.train import TrainingInterrupted, train
     from sim_harness.world import WorldError
 
     try:
@@ -46,6 +50,17 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, WorldError) as exc:
         print(f"quadnav-sim train: {exc}", file=sys.stderr)
         return 2
+    except TrainingInterrupted as stop:
+        r = stop.result
+        print(
+            f"quadnav-sim train: interrupted after {r.episodes} episodes; saved {r.model_path}\n"
+            f"resume with: quadnav-sim train --resume {r.run_dir}",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    except KeyboardInterrupt:
+        print("quadnav-sim train: interrupted before the first episode; nothing was trained", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(f"run directory: {result.run_dir}")
     print(f"model:         {result.model_path}")
     print(

@@ -248,3 +248,58 @@ def test_procedural_families_flag_is_validated_and_names_the_key() -> None:
     assert config_from_args(args).procedural_families == ("slalom_ud", "clutter", "slalom_ud")
     with pytest.raises(ConfigError, match=r"procedural_families.*'forest'"):
         config_from_args(build_parser().parse_args(["train", "--procedural-families", "forest"]))
+
+
+def test_ctrl_c_saves_the_run_and_says_how_to_resume(tmp_path, capsys, monkeypatch) -> None:
+    """Ctrl-C during `quadnav-sim train` ended in a traceback with no word of --resume: now the
+    episodes finished are checkpointed, the command says how to resume (exit 130), and resuming
+    finishes the run without repeating an episode."""
+    import sim_harness.rl.train as train_module
+    from sim_harness.cli import main
+    from sim_harness.env import VecQuadNavEnv
+
+    class CtrlCAtStep20(VecQuadNavEnv):
+        steps = 0
+
+        def step(self, actions):
+            CtrlCAtStep20.steps += 1
+            if CtrlCAtStep20.steps == 20:
+                raise KeyboardInterrupt
+            return super().step(actions)
+
+    monkeypatch.setattr(train_module, "VecQuadNavEnv", CtrlCAtStep20)
+    flags = ["--name", "tiny", "--seed", "3", "--episodes", "40", "--train-worlds", "1", "4", "--n-envs", "4",
+             "--max-steps", "12", "--batch-size", "8", "--buffer-size", "500", "--learning-starts", "16",
+             "--checkpoint-every", "100", "--out-dir", str(tmp_path), "--no-progress"]
+    try:
+        rc = main(["train", *flags])
+    except KeyboardInterrupt:
+        pytest.fail("Ctrl-C escaped `quadnav-sim train` (a traceback, no word of --resume)")
+    assert rc == 130
+    err = capsys.readouterr().err
+    (run,) = tmp_path.iterdir()
+    assert "Traceback" not in err and f"resume with: quadnav-sim train --resume {run}" in err
+    saved = json.loads((run / "state.json").read_text())["episodes"]
+    assert 0 < saved < 40 and f"interrupted after {saved} episodes" in err
+    assert (run / "checkpoints" / "latest.pt").is_file() and not (run / "checkpoints" / "final.pt").exists()
+    monkeypatch.setattr(train_module, "VecQuadNavEnv", VecQuadNavEnv)
+    assert main(["train", "--resume", str(run), "--no-progress"]) == 0
+    rows = json.loads((run / "metrics.json").read_text())
+    assert [r["episode"] for r in rows] == list(range(40))
+
+
+def test_ctrl_c_before_the_first_episode_is_a_clean_exit(tmp_path, capsys, monkeypatch) -> None:
+    import sim_harness.rl.train as train_module
+    from sim_harness.cli import main
+
+    def interrupted(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "VecQuadNavEnv", interrupted)
+    try:
+        rc = main(["train", "--episodes", "2", "--out-dir", str(tmp_path), "--no-progress"])
+    except KeyboardInterrupt:
+        pytest.fail("Ctrl-C escaped `quadnav-sim train` as a traceback")
+    assert rc == 130
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "interrupted before the first episode" in err

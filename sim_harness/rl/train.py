@@ -36,7 +36,14 @@ from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, r
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.world import load_world, paper_world_path
 
-__all__ = ["TrainResult", "env_config_for", "learning_rate_at", "network_config_for", "train"]
+__all__ = [
+    "TrainResult",
+    "TrainingInterrupted",
+    "env_config_for",
+    "learning_rate_at",
+    "network_config_for",
+    "train",
+]
 
 
 @dataclasses.dataclass
@@ -57,6 +64,16 @@ class TrainResult:
     @property
     def updates_per_s(self) -> float:
         return self.updates / max(self.wall_s, 1e-9)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) while training: the run was checkpointed first, so ``train(resume=run_dir)``
+    (``quadnav-sim train --resume RUN_DIR``) continues it. ``result``: the run directory, the
+    checkpoint just written and the episodes finished."""
+
+    def __init__(self, result: TrainResult) -> None:
+        super().__init__(f"training interrupted after {result.episodes} episodes")
+        self.result = result
 
 
 def env_config_for(cfg: TrainConfig) -> EnvConfig:
@@ -137,7 +154,8 @@ def train(
     """Train (or resume) one run; returns its directory, final model and throughput figures.
 
     ``kill_after_episodes`` (tests) stops abruptly after that many finished episodes, without the
-    final checkpoint, as a killed process would.
+    final checkpoint, as a killed process would. A KeyboardInterrupt (Ctrl-C) during the episodes
+    writes a checkpoint of the episodes finished so far and raises :class:`TrainingInterrupted`.
     """
     if resume is not None:
         run_dir = Path(resume)
@@ -225,67 +243,76 @@ def train(
             plot_reward_curve(rows, run_dir / "reward_curve.png", f"{run_dir.name}")
         return model
 
-    while finished < cfg.episodes:
-        if cfg.lr_end is not None:
-            lr = learning_rate_at(finished, cfg)
-            for group in agent.optimizer.param_groups:
-                group["lr"] = lr
-        gamma = gamma_of(finished)
-        eps = np.array([eps_of(e) for e in env_episode])
-        actions = agent.act(depth, rel, eps, act_rng, env.allowed if cfg.shield else None)
-        prev_depth, prev_rel = depth.copy(), rel.copy()
-        depth, rel, rew, term, trunc, info = env.step(actions)
-        ended = term | trunc
-        next_depth = np.where(ended[:, None, None, None], info["final_depth"], depth)
-        next_rel = np.where(ended[:, None, None], info["final_rel_pos"], rel)
-        next_allowed = np.where(ended[:, None], info["final_allowed"], env.allowed) if cfg.shield else None
-        trans = nstep.push(
-            prev_depth, prev_rel, actions, rew, next_depth, next_rel, term, trunc, gamma, next_allowed
-        )
-        if trans:
-            buffer.add(**trans)
-        env_steps += cfg.n_envs
-        if len(buffer) >= cfg.learning_starts:
-            update_credit += cfg.updates_per_step
-            if isinstance(buffer, PrioritizedReplayBuffer):
-                buffer.beta = beta_of(finished)
-            while update_credit >= 1.0:
-                batch = buffer.sample(cfg.batch_size)
-                losses.append(agent.update(batch, gamma))
-                buffer.update_priorities(batch.index, agent.last_td_abs)
-                update_credit -= 1.0
-        for i in np.flatnonzero(ended):
-            if finished >= cfg.episodes:
-                break
-            rows.append(
-                {
-                    "episode": finished,
-                    "world": worlds[int(info["world_index"][i])].name,
-                    "reward": round(float(info["episode_return"][i]), 6),
-                    "length": int(info["steps"][i]),
-                    "outcome": str(info["outcome"][i]),
-                    "progress_m": round(float(info["progress_m"][i]), 3),
-                    "epsilon": round(float(eps[i]), 6),
-                    "gamma": round(gamma, 6),
-                    "loss": round(float(np.mean(losses)), 6) if losses else float("nan"),
-                    "env_steps": env_steps,
-                    "wall_s": round(time.monotonic() - t0, 3),
-                }
+    try:
+        while finished < cfg.episodes:
+            if cfg.lr_end is not None:
+                lr = learning_rate_at(finished, cfg)
+                for group in agent.optimizer.param_groups:
+                    group["lr"] = lr
+            gamma = gamma_of(finished)
+            eps = np.array([eps_of(e) for e in env_episode])
+            actions = agent.act(depth, rel, eps, act_rng, env.allowed if cfg.shield else None)
+            prev_depth, prev_rel = depth.copy(), rel.copy()
+            depth, rel, rew, term, trunc, info = env.step(actions)
+            ended = term | trunc
+            next_depth = np.where(ended[:, None, None, None], info["final_depth"], depth)
+            next_rel = np.where(ended[:, None, None], info["final_rel_pos"], rel)
+            next_allowed = (
+                np.where(ended[:, None], info["final_allowed"], env.allowed) if cfg.shield else None
             )
-            losses.clear()
-            finished += 1
-            env_episode[i] = started
-            started += 1
-            bar.update(1)
-            bar.set_postfix(reward=f"{rows[-1]['reward']:.2f}", eps=f"{eps[i]:.2f}", refresh=False)
-            due = finished % cfg.checkpoint_every == 0 or (cfg.keep_every and finished % cfg.keep_every == 0)
-            if due and finished < cfg.episodes:
-                checkpoint()
-            if kill_after_episodes is not None and finished >= kill_after_episodes:
-                bar.close()
-                return TrainResult(
-                    run_dir, run_dir / "checkpoints" / "latest.pt", finished, env_steps, 0, 0.0
+            trans = nstep.push(
+                prev_depth, prev_rel, actions, rew, next_depth, next_rel, term, trunc, gamma, next_allowed
+            )
+            if trans:
+                buffer.add(**trans)
+            env_steps += cfg.n_envs
+            if len(buffer) >= cfg.learning_starts:
+                update_credit += cfg.updates_per_step
+                if isinstance(buffer, PrioritizedReplayBuffer):
+                    buffer.beta = beta_of(finished)
+                while update_credit >= 1.0:
+                    batch = buffer.sample(cfg.batch_size)
+                    losses.append(agent.update(batch, gamma))
+                    buffer.update_priorities(batch.index, agent.last_td_abs)
+                    update_credit -= 1.0
+            for i in np.flatnonzero(ended):
+                if finished >= cfg.episodes:
+                    break
+                rows.append(
+                    {
+                        "episode": finished,
+                        "world": worlds[int(info["world_index"][i])].name,
+                        "reward": round(float(info["episode_return"][i]), 6),
+                        "length": int(info["steps"][i]),
+                        "outcome": str(info["outcome"][i]),
+                        "progress_m": round(float(info["progress_m"][i]), 3),
+                        "epsilon": round(float(eps[i]), 6),
+                        "gamma": round(gamma, 6),
+                        "loss": round(float(np.mean(losses)), 6) if losses else float("nan"),
+                        "env_steps": env_steps,
+                        "wall_s": round(time.monotonic() - t0, 3),
+                    }
                 )
+                losses.clear()
+                finished += 1
+                env_episode[i] = started
+                started += 1
+                bar.update(1)
+                bar.set_postfix(reward=f"{rows[-1]['reward']:.2f}", eps=f"{eps[i]:.2f}", refresh=False)
+                keep_due = cfg.keep_every and finished % cfg.keep_every == 0
+                due = finished % cfg.checkpoint_every == 0 or keep_due
+                if due and finished < cfg.episodes:
+                    checkpoint()
+                if kill_after_episodes is not None and finished >= kill_after_episodes:
+                    bar.close()
+                    return TrainResult(
+                        run_dir, run_dir / "checkpoints" / "latest.pt", finished, env_steps, 0, 0.0
+                    )
+    except KeyboardInterrupt:  # Ctrl-C: keep what was learned, say how to go on
+        bar.close()
+        model = checkpoint()
+        result = TrainResult(run_dir, model, finished, env_steps, agent.n_updates, time.monotonic() - t0)
+        raise TrainingInterrupted(result) from None
     bar.close()
     checkpoint(final=True)
     wall = time.monotonic() - t0
