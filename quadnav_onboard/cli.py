@@ -32,6 +32,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="FLIGHT.yaml", help="flight configuration (see config/flight.yaml)")
     p.add_argument("--dry-run", action="store_true", help="fly in the sim harness with the bundled model")
     p.add_argument("--world", metavar="WORLD.yaml", help="with --dry-run: world file to fly (default: Env 1)")
+    p.add_argument(
+        "--in-process",
+        action="store_true",
+        help="with --dry-run: run the sim's vehicle, camera and mocap inside the daemon's process "
+        "(for tests; the default runs each as its own process, as on a vehicle)",
+    )
     p.add_argument("--model", metavar="CKPT.pt", help="checkpoint to fly (overrides model_path)")
     p.add_argument("--json", action="store_true", help="print the flight summary as one JSON object")
     p.add_argument(
@@ -63,6 +69,7 @@ def _open_recorder(cfg: Any, metadata: dict[str, str]) -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
+    t_start_mono_s = time.monotonic()
     args = build_parser().parse_args(argv)
     from quadnav_onboard.logs import configure_logging
 
@@ -74,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.world and not args.dry_run:
         return _fail("--world needs --dry-run")
+    if args.in_process and not args.dry_run:
+        return _fail("--in-process needs --dry-run")
     if not args.config and not args.dry_run:
         return _fail("give --config FLIGHT.yaml, or --dry-run to fly the simulator")
     source = args.config or "<embedded defaults/sim.yaml>"
@@ -104,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     if policy.n_actions != n_prims:
         return _fail(f"model refused: {model_path}: {policy.n_actions} outputs, the action set has {n_prims}")
     try:
-        summary = _fly(args, cfg, policy, trigger, model_path)
+        summary = _fly(args, cfg, policy, trigger, model_path, t_start_mono_s)
     except ConfigError as exc:
         return _fail(f"configuration error:\n{exc}")
     except (ValueError, OSError) as exc:  # a bad world file, a device that cannot open: no traceback
@@ -144,7 +153,9 @@ def _check_mission_path(args: argparse.Namespace, cfg: Any, path: Any, world: st
     check_mission_path(cfg, path, source, "mission.waypoints_m" if from_config else f"{world} path.waypoints")
 
 
-def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_path: Path) -> Any:
+def _fly(
+    args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_path: Path, t_start_mono_s: float
+) -> Any:
     import torch
 
     from quadnav_onboard.daemon.app import FlightDaemon
@@ -158,9 +169,10 @@ def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_pa
     }
     with contextlib.ExitStack() as stack:
         if args.dry_run:
-            from quadnav_onboard.daemon.dryrun import DryRun
+            from quadnav_onboard.daemon.dryrun import DryRun, ProcessDryRun
 
-            sim = stack.enter_context(DryRun(cfg, args.world))
+            wiring = DryRun if args.in_process else ProcessDryRun
+            sim = stack.enter_context(wiring(cfg, args.world))
             cfg = sim.cfg
             parts = sim.parts()
             meta["world"] = str(sim.world_path)
@@ -174,7 +186,13 @@ def _fly(args: argparse.Namespace, cfg: Any, policy: Any, trigger: Any, model_pa
             with contextlib.suppress(Exception):
                 recorder.rough_path(time.monotonic(), parts["path"].waypoints_m)
         daemon = FlightDaemon(
-            cfg, policy=policy, recorder=recorder, notifier=_notifier(), trigger=trigger, **parts
+            cfg,
+            policy=policy,
+            recorder=recorder,
+            notifier=_notifier(),
+            trigger=trigger,
+            t_start_mono_s=t_start_mono_s,
+            **parts,
         )
         return asyncio.run(daemon.run())
 

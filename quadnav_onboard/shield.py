@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from quadnav_onboard.config import CONFIG_DICT, parse_config
 from quadnav_onboard.frames import body_to_world, pixel_slopes, world_to_body
-from quadnav_onboard.jit import CAN_CACHE
+from quadnav_onboard.jit import CAN_CACHE, kernel_array
 from quadnav_onboard.preprocess import OUT_SIZE
 from quadnav_onboard.primitives import PrimitiveSet, bezier_position, bezier_velocity
 
@@ -325,10 +325,10 @@ def _predict_tracking(
     out = np.empty((n, a, k // every, 3))
     v_end = np.empty((n, a, 3))
     _track(
-        np.ascontiguousarray(pos, dtype=np.float64),
-        np.ascontiguousarray(vel, dtype=np.float64),
-        np.ascontiguousarray(cmd),
-        np.ascontiguousarray(vcmd),
+        kernel_array(pos, np.float64),
+        kernel_array(vel, np.float64),
+        kernel_array(cmd, np.float64),
+        kernel_array(vcmd, np.float64),
         float(dt),
         int(every),
         float(cfg.track_omega_rad_s),
@@ -409,8 +409,8 @@ def primitive_clearance(
 ) -> NDArray[np.float64]:
     """Least distance (m, capped at ``search_radius_m``) from each primitive's samples
     (N, A, S, 3) to the points (N, P, 3) (NaN rows ignored); shape (N, A)."""
-    s = np.ascontiguousarray(samples_world_m, dtype=np.float64)
-    p = np.ascontiguousarray(points_world_m, dtype=np.float32)
+    s = kernel_array(samples_world_m, np.float64)
+    p = kernel_array(points_world_m, np.float32)
     out = np.empty(s.shape[:2], dtype=np.float64)
     _min_distance(s, p, float(cfg.search_radius_m), out)
     return out
@@ -468,13 +468,13 @@ def primitive_seen_free(
     field of view, ``seen_margin_m`` in front of what it measured), or within ``near_m`` of where
     the vehicle is now. Unknown space (beside or below the camera, behind an obstacle) is not free.
     ``view_depth_m`` (N, K, 32, 32) and ``view_pose`` (N, K, 4) are a :class:`PointMemory`'s."""
-    s = np.ascontiguousarray(samples_world_m, dtype=np.float64)
+    s = kernel_array(samples_world_m, np.float64)
     out = np.empty(s.shape[:2], dtype=np.bool_)
     _seen_free(
         s,
-        np.ascontiguousarray(view_depth_m, dtype=np.float32),
-        np.ascontiguousarray(view_pose, dtype=np.float64),
-        np.ascontiguousarray(pos_world_m, dtype=np.float64),
+        kernel_array(view_depth_m, np.float32),
+        kernel_array(view_pose, np.float64),
+        kernel_array(pos_world_m, np.float64),
         math.tan(math.radians(cfg.hfov_deg) / 2),
         math.tan(math.radians(cfg.vfov_deg) / 2),
         cfg.seen_margin_m,

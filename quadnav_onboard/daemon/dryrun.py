@@ -1,9 +1,17 @@
 """Dry-run wiring: the daemon against the sim harness (the only place quadnav_onboard imports it).
 
-Starts the emulated PX4 (:class:`sim_harness.px4.Px4Emulator`) on an OS-chosen UDP port with the
-world, the synthetic D435 (:class:`sim_harness.camera.SimDepthCamera`) and the simulated mocap
-(:class:`sim_harness.mocap.SimMocap`) on the emulator's true pose, and a real
-:class:`~quadnav_onboard.vehicle.MavsdkVehicle` that connects to it over real MAVLink.
+:class:`ProcessDryRun` (what ``quadnav-onboard --dry-run`` flies) starts the sim's vehicle side as
+child processes (:class:`sim_harness.vehicle_side.VehicleSide`: the emulated PX4, the sim camera,
+the emulated OptiTrack Motive) and wires the daemon to them through the sources a flight uses:
+MAVSDK over MAVLink/UDP, :class:`~quadnav_onboard.sources.socket_depth.SocketDepthSource` and
+:class:`~quadnav_onboard.sources.mocap.MocapOdometrySource` over NatNet (``odometry.kind: px4``:
+PX4's own estimate instead, no mocap process).
+
+:class:`DryRun` is the single-process variant for tests that reach into the emulator: the emulated
+PX4 (:class:`sim_harness.px4.Px4Emulator`) on an OS-chosen UDP port, the synthetic D435
+(:class:`sim_harness.camera.SimDepthCamera`) and the simulated mocap
+(:class:`sim_harness.mocap.SimMocap`) on the emulator's true pose, all in the daemon's process, and
+a real :class:`~quadnav_onboard.vehicle.MavsdkVehicle` that connects to it over real MAVLink.
 """
 
 from __future__ import annotations
@@ -13,15 +21,120 @@ from pathlib import Path
 from typing import Any
 
 from quadnav_onboard.daemon.config import FlightConfig
+from quadnav_onboard.daemon.hardware import depth_source, odometry_source
+from quadnav_onboard.logs import get_logger
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.vehicle import MavsdkVehicle
 
-__all__ = ["DryRun"]
+__all__ = ["DryRun", "ProcessDryRun"]
+
+log = get_logger("quadnav.dryrun")
 
 GEAR_HEIGHT_M = 0.1
 """The emulator parks the body origin on the floor; a real D435 sits at least landing-gear height
 above it (else it sees no floor at all and preflight rightly refuses an all-invalid frame). The sim
 camera's height is floored at ``floor + GEAR_HEIGHT_M``; in flight (higher) nothing changes."""
+
+
+def _flight_path(cfg: FlightConfig, world: Any) -> RoughPath:
+    """The rough path to fly: the config's waypoints if given, else the world's."""
+    wps = cfg.mission.waypoints_m
+    if wps is None:
+        return world.path
+    return RoughPath(wps, cfg.mission.speed_m_s)
+
+
+class ProcessDryRun:
+    """Context manager: ``with ProcessDryRun(cfg, world_path) as sim: FlightDaemon(..., **sim.parts())``.
+
+    ``emulator``: keyword arguments for :class:`sim_harness.px4.EmulatorConfig`; ``mocap``:
+    settings of the emulated Motive (``rate_hz``, ``noise_m``, ``latency_s``, ``dropout``, ...).
+    ``world_path`` None = the paper's Env 1. ``side`` is the running
+    :class:`~sim_harness.vehicle_side.VehicleSide` (its parts can be killed to inject faults).
+    """
+
+    def __init__(
+        self,
+        cfg: FlightConfig,
+        world_path: str | Path | None = None,
+        *,
+        emulator: dict[str, Any] | None = None,
+        mocap: dict[str, Any] | None = None,
+        seed: int = 0,
+    ) -> None:
+        from sim_harness.world import load_world, paper_world_path
+
+        self.world_path = Path(world_path) if world_path is not None else paper_world_path(1)
+        self.world = load_world(self.world_path)
+        self.cfg = cfg
+        self._emulator_kwargs = emulator or {}
+        self._mocap_kwargs = mocap or {}
+        self.seed = seed
+        self.side: Any = None
+
+    @property
+    def path(self) -> RoughPath:
+        return _flight_path(self.cfg, self.world)
+
+    def __enter__(self) -> ProcessDryRun:
+        from sim_harness.natnet import ROTATION_WORLD_FROM_MOTIVE
+        from sim_harness.vehicle_side import VehicleSideError
+
+        cfg, d = self.cfg, self.cfg.depth
+        mocap = cfg.odometry.kind != "px4"
+        try:
+            self.side = self._start_side(cfg, mocap)
+        except VehicleSideError as exc:  # the command line reports an OSError as "cannot start"
+            raise OSError(f"dry run: {exc}") from exc
+        side = self.side
+        odometry = cfg.odometry
+        if mocap:
+            host, port = side.mocap_command
+            odometry = dataclasses.replace(
+                odometry, kind="mocap", system_type="optitrack", host=host, port_command=port,
+                rotation_world_from_mocap=ROTATION_WORLD_FROM_MOTIVE, translation_world_m=(0.0, 0.0, 0.0),
+            )
+        self.cfg = dataclasses.replace(
+            cfg,
+            vehicle=dataclasses.replace(cfg.vehicle, url=side.url),
+            depth=dataclasses.replace(d, kind="socket", socket_path=side.depth_socket),
+            odometry=odometry,
+        )
+        log.info(
+            "sim_vehicle_side_ready",
+            ready_s=round(side.t_ready_s, 3),
+            parts={name: {k: v for k, v in p.info.items() if k != "ready"} for name, p in side.parts.items()},
+        )
+        return self
+
+    def _start_side(self, cfg: FlightConfig, mocap: bool) -> Any:
+        from sim_harness.vehicle_side import VehicleSide
+
+        d = cfg.depth
+        return VehicleSide(
+            self.world_path,
+            camera={"width": d.width, "height": d.height, "fps": d.fps, "seed": self.seed},
+            mocap={"rigid_body": cfg.odometry.rigid_body, "seed": self.seed, **self._mocap_kwargs},
+            emulator=self._emulator_kwargs,
+            parts=("vehicle", "camera", "mocap") if mocap else ("vehicle", "camera"),
+        ).start()
+
+    def __exit__(self, *exc: object) -> None:
+        if self.side is not None:
+            self.side.stop()
+
+    def parts(self) -> dict[str, Any]:
+        """Keyword arguments for FlightDaemon: path, depth, odometry, vehicle, crash_probe."""
+        v = self.cfg.vehicle
+        vehicle = MavsdkVehicle(v.url, connect_timeout_s=v.connect_timeout_s,
+                                command_timeout_s=v.command_timeout_s)
+        return {
+            "path": self.path,
+            "depth": depth_source(self.cfg, "dry run"),
+            "odometry": odometry_source(self.cfg, vehicle, "dry run"),
+            "vehicle": vehicle,
+            "crash_probe": self.side.crashed,
+        }
 
 
 class _CameraPose:
@@ -69,10 +182,7 @@ class DryRun:
     @property
     def path(self) -> RoughPath:
         """The rough path to fly: the config's waypoints if given, else the world's."""
-        wps = self.cfg.mission.waypoints_m
-        if wps is None:
-            return self.world.path
-        return RoughPath(wps, self.cfg.mission.speed_m_s)
+        return _flight_path(self.cfg, self.world)
 
     def __enter__(self) -> DryRun:
         from sim_harness.px4 import EmulatorConfig, Px4Emulator, free_udp_port

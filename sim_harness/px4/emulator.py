@@ -103,6 +103,9 @@ class Px4Emulator:
         self.commands = CommandHandler(self)
         self.seen_message_types: dict[str, int] = {}
         """Counts of every MAVLink message type received (to learn what a client sends)."""
+        self.on_pose: Callable[[TruePose], None] | None = None
+        """Called on the emulator's thread with each physics tick's true pose (under its lock):
+        how the vehicle side publishes the true state to the sim's other processes."""
 
     # --- lifecycle -----------------------------------------------------------------------------
     def start(self) -> Px4Emulator:
@@ -239,6 +242,8 @@ class Px4Emulator:
             self.vehicle.tick(now - (steps - 1 - k) * elapsed / steps, elapsed / steps)
         self._t_last_tick = now
         self._pose = self._make_pose(now)
+        if self.on_pose is not None:
+            self.on_pose(self._pose)
         self._send_telemetry(now, next_send)
         for link in self._links:
             link.flush_delayed(now)
