@@ -19,9 +19,9 @@ import enum
 import json
 import math
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -159,6 +159,34 @@ class VehicleLink(Protocol):
     async def close(self) -> None: ...
 
 
+MAVSDK_VERSION = "4.1.0"
+"""The MAVSDK release :func:`_sync_setpoint_sender` is written against (pinned in pyproject.toml)."""
+
+
+def _sync_setpoint_sender(offboard: Any) -> Callable[[Any, Any], Any]:
+    """The synchronous ``set_position_velocity_ned`` under MAVSDK's ``OffboardAsync``.
+
+    ``OffboardAsync`` (mavsdk 4.1.0) holds the ctypes plugin as ``_plugin`` and sends each setpoint
+    through ``run_in_executor``; the daemon calls the plugin itself to save that thread hop. The
+    attribute is private, so mavsdk is pinned exactly and its presence is checked here, at connect,
+    before anything can arm: a MAVSDK without it is refused with the version that has it.
+    """
+    send = getattr(getattr(offboard, "_plugin", None), "set_position_velocity_ned", None)
+    if not callable(send):
+        try:
+            from importlib.metadata import version
+
+            installed = version("mavsdk")
+        except Exception:  # not installed as a distribution (a source checkout)
+            installed = "unknown"
+        raise VehicleError(
+            f"mavsdk {installed}: OffboardAsync has no synchronous set_position_velocity_ned "
+            f"(_plugin); quadnav needs mavsdk=={MAVSDK_VERSION} (pip install 'mavsdk=={MAVSDK_VERSION}')",
+            VehicleErrorKind.CONNECT,
+        )
+    return send
+
+
 class MavsdkVehicle:
     """:class:`VehicleLink` over MAVSDK (native asyncio binding) at ``url``."""
 
@@ -179,6 +207,7 @@ class MavsdkVehicle:
         self._mavsdk = None
         self._guard: LinkGuard | None = None
         self._telemetry = self._action = self._offboard = self._mocap = self._direct = None
+        self._send_setpoint: Callable[[Any, Any], Any] | None = None
 
     async def connect(self) -> None:
         """Bind to the one autopilot on the link (see :mod:`quadnav_onboard.vehicle_binding`), then
@@ -215,6 +244,10 @@ class MavsdkVehicle:
         self._telemetry = TelemetryAsync(system)
         self._action = ActionAsync(system)
         self._offboard = OffboardAsync(system)
+        self._send_setpoint = _sync_setpoint_sender(self._offboard)
+        # MAVSDK answers PX4's TIMESYNC and converts the forwarded vision estimates' time_usec
+        # (this process's monotonic clock) into PX4's time base (docs/hardware.md, section 5).
+        await system.enable_timesync()
         self._mocap = MocapAsync(system)
         self._direct = MavlinkDirectAsync(system)
         self.state.connected = True
@@ -369,13 +402,13 @@ class MavsdkVehicle:
         n, e, d = (float(x) for x in enu_to_ned(pos_world_m))
         vn, ve, vd = (float(x) for x in enu_to_ned(vel_world_m_s))
         yaw_deg = math.degrees(float(yaw_enu_to_ned(yaw_rad)))
+        if self._send_setpoint is None:
+            raise VehicleError("setpoint: not connected", VehicleErrorKind.NOT_CONNECTED)
         # Sending a setpoint is one non-blocking MAVLink write in MAVSDK (no acknowledgement), so it
         # is called directly on the loop: a hop through the default executor cost ~1 ms of decision
-        # latency under load (benchmarks/bench_daemon.py).
+        # latency under load (benchmarks/bench_daemon.py). See _sync_setpoint_sender.
         try:
-            self._offboard._plugin.set_position_velocity_ned(
-                PositionNedYaw(n, e, d, yaw_deg), VelocityNedYaw(vn, ve, vd, yaw_deg)
-            )
+            self._send_setpoint(PositionNedYaw(n, e, d, yaw_deg), VelocityNedYaw(vn, ve, vd, yaw_deg))
         except Exception as exc:
             raise VehicleError(f"setpoint: not sent: {exc}", VehicleErrorKind.NOT_SENT) from exc
 

@@ -154,3 +154,39 @@ def test_target_check_platforms_and_wheel_tags() -> None:
     assert not ok("motioncapture-1.1.tar.gz", "aarch64")
     with pytest.raises(SystemExit, match=r"2\.N"):
         script.platform_tags("aarch64", "2.5")
+
+
+def test_the_setpoint_path_matches_the_pinned_mavsdk() -> None:
+    """The pin in pyproject.toml, the installed mavsdk and the version the setpoint path is written
+    for agree, and that release's OffboardAsync does hold the synchronous plugin as ``_plugin``."""
+    import inspect
+    from importlib.metadata import version
+
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync
+    from mavsdk.plugins.offboard import Offboard
+
+    from quadnav_onboard.vehicle import MAVSDK_VERSION
+
+    assert _names(_pyproject()["project"]["dependencies"])["mavsdk"] == f"=={MAVSDK_VERSION}"
+    assert version("mavsdk") == MAVSDK_VERSION
+    assert "self._plugin = Offboard(" in inspect.getsource(OffboardAsync.__init__)
+    assert callable(Offboard.set_position_velocity_ned)
+
+
+def test_a_mavsdk_without_the_plugin_object_is_refused_at_connect() -> None:
+    """An OffboardAsync without ``_plugin`` (another MAVSDK release) is refused with a VehicleError
+    naming the release quadnav needs; one with it hands back the plugin's own method."""
+    from unittest import mock
+
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync
+    from mavsdk.plugins.offboard import Offboard
+
+    from quadnav_onboard.vehicle import VehicleError, VehicleErrorKind, _sync_setpoint_sender
+
+    other_release = mock.create_autospec(OffboardAsync, instance=True)  # no instance attributes
+    with pytest.raises(VehicleError, match=re.escape("pip install 'mavsdk==4.1.0'")) as err:
+        _sync_setpoint_sender(other_release)
+    assert err.value.kind is VehicleErrorKind.CONNECT
+    this_release = mock.create_autospec(OffboardAsync, instance=True)
+    this_release._plugin = mock.create_autospec(Offboard, instance=True)
+    assert _sync_setpoint_sender(this_release) is this_release._plugin.set_position_velocity_ned
