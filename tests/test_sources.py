@@ -1,11 +1,10 @@
-"""Hardware sources without hardware: UVC over a fake capture (spec=cv2.VideoCapture), PNG replay,
-mocap through the motioncapture library's mock backend, and the mocap frame transform."""
+"""Hardware sources without hardware: PNG replay, mocap through the motioncapture library's mock
+backend, and the mocap frame transform (the D435 over V4L2: tests/test_uvc.py)."""
 
 from __future__ import annotations
 
 import asyncio
 from pathlib import Path
-from unittest import mock
 
 import cv2
 import numpy as np
@@ -14,62 +13,8 @@ import pytest
 from quadnav_onboard.frames import quat_from_rotmat, quat_from_yaw, quat_to_rotmat, quat_to_yaw
 from quadnav_onboard.sources.mocap import MocapError, MocapOdometrySource, MocapTransform
 from quadnav_onboard.sources.replay import ReplayDepthSource, ReplayError
-from quadnav_onboard.sources.uvc import Z16, DepthSourceError, UvcDepthSource, raw_to_depth_mm
 
 Y_UP = ((1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0))
-
-
-def test_raw_z16_bytes_become_uint16_millimetres() -> None:
-    depth = np.arange(32 * 40, dtype=np.uint16).reshape(32, 40) * 7
-    raw = depth.astype("<u2").view(np.uint8).reshape(1, -1)
-    assert np.array_equal(raw_to_depth_mm(raw, 40, 32), depth)
-    assert raw_to_depth_mm(depth, 40, 32) is depth
-    with pytest.raises(ValueError, match="RGB"):
-        raw_to_depth_mm(np.zeros((32, 40, 3), np.uint8), 40, 32)
-
-
-def fake_capture(frames: list[tuple[bool, np.ndarray | None]], opened: bool = True) -> mock.Mock:
-    cap = mock.create_autospec(cv2.VideoCapture, instance=True)
-    cap.isOpened.return_value = opened
-    cap.read.side_effect = frames
-    return cap
-
-
-async def test_uvc_source_asks_v4l2_for_raw_z16_and_yields_uint16_frames() -> None:
-    depth = np.full((240, 424), 1234, np.uint16)
-    cap = fake_capture([(True, depth.view(np.uint8).reshape(1, -1))] * 3)
-    factory = mock.Mock(return_value=cap)
-    async with UvcDepthSource("/dev/video2", 424, 240, 30, capture_factory=factory) as src:
-        frames = src.frames()
-        f = await anext(frames)
-    factory.assert_called_once_with("/dev/video2", cv2.CAP_V4L2)
-    props = {c.args[0]: c.args[1] for c in cap.set.call_args_list}
-    assert props[cv2.CAP_PROP_FOURCC] == Z16 and props[cv2.CAP_PROP_CONVERT_RGB] == 0
-    assert props[cv2.CAP_PROP_FORMAT] == -1
-    assert (props[cv2.CAP_PROP_FRAME_WIDTH], props[cv2.CAP_PROP_FRAME_HEIGHT], props[cv2.CAP_PROP_FPS]) == (
-        424,
-        240,
-        30,
-    )
-    assert f.depth_mm.dtype == np.uint16 and f.depth_mm.shape == (240, 424) and f.seq == 1
-    assert int(f.depth_mm[0, 0]) == 1234
-
-
-async def test_uvc_device_index_and_open_failure_are_named() -> None:
-    factory = mock.Mock(return_value=fake_capture([], opened=False))
-    with pytest.raises(DepthSourceError, match="'2'"):
-        async with UvcDepthSource("2", capture_factory=factory):
-            pass
-    factory.assert_called_once_with(2, cv2.CAP_V4L2)
-
-
-async def test_uvc_gives_up_after_repeated_read_failures() -> None:
-    cap = fake_capture([(False, None)] * 5)
-    async with UvcDepthSource(
-        "/dev/video0", capture_factory=mock.Mock(return_value=cap), max_consecutive_failures=5
-    ) as src:
-        with pytest.raises(DepthSourceError, match="5 reads in a row"):
-            await anext(src.frames())
 
 
 async def test_replay_plays_16_bit_pngs_in_name_order(tmp_path: Path) -> None:
