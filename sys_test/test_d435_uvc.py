@@ -1,63 +1,63 @@
-"""D435 over UVC (kernel uvcvideo, no librealsense): raw Z16 depth through OpenCV's V4L2 backend.
+"""D435 over UVC (kernel uvcvideo, no librealsense): raw Z16 depth through the daemon's own source.
 
-QUADNAV_D435_DEVICE=/dev/video2 (the depth node; `v4l2-ctl --list-devices`). Point the camera at a
-wall or a person 0.5-5 m away.
+QUADNAV_D435_DEVICE=auto (find the depth node, as ``depth.device: auto`` does) or the node itself,
+e.g. /dev/video2 (`v4l2-ctl --list-devices`). Point the camera at a wall or a person 0.5-5 m away.
 """
 
 from __future__ import annotations
 
+import asyncio
 import time
 
-import cv2
 import numpy as np
 import pytest
 from conftest import require_env
 
 from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
+from quadnav_onboard.sources.uvc import (
+    AUTO_DEVICE,
+    UvcDepthSource,
+    V4l2Mode,
+    find_depth_node,
+    v4l2_capture_formats,
+)
 
-WIDTH, HEIGHT, FPS = 424, 240, 30
+WIDTH, HEIGHT, FPS = 424, 240, 30.0
 
 
 @pytest.fixture
-def capture() -> cv2.VideoCapture:
-    device = require_env("QUADNAV_D435_DEVICE", "D435 depth node")
-    cap = cv2.VideoCapture(int(device) if device.isdigit() else device, cv2.CAP_V4L2)
-    assert cap.isOpened(), f"{device}: cannot open with CAP_V4L2 (group quadnav? udev rule?)"
-    cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc("Z", "1", "6", " "))
-    cap.set(cv2.CAP_PROP_FRAME_WIDTH, WIDTH)
-    cap.set(cv2.CAP_PROP_FRAME_HEIGHT, HEIGHT)
-    cap.set(cv2.CAP_PROP_FPS, FPS)
-    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
-    yield cap
-    cap.release()
+def device() -> str:
+    return require_env("QUADNAV_D435_DEVICE", "D435 depth node (or 'auto')")
 
 
-def _as_depth_mm(frame: np.ndarray) -> np.ndarray:
-    """OpenCV hands Z16 over as uint16 (H, W), or as raw bytes on older builds."""
-    if frame.dtype == np.uint16:
-        return frame.reshape(HEIGHT, WIDTH)
-    return np.frombuffer(frame.tobytes(), dtype="<u2").reshape(HEIGHT, WIDTH)
+def test_depth_node_is_found_by_name_and_format(device: str) -> None:
+    """Exactly one V4L2 node is named RealSense and offers Z16 (the depth node), and it is readable."""
+    node = find_depth_node()
+    print(f"depth node: {node}, formats {v4l2_capture_formats(node)}")
+    if device != AUTO_DEVICE:
+        assert node == device, f"QUADNAV_D435_DEVICE={device} but the depth node found is {node}"
 
 
-def test_device_negotiates_z16_at_424x240(capture: cv2.VideoCapture) -> None:
-    """The driver accepts the Z16 format at 424x240 (the depth node, not the RGB or IR node)."""
-    fourcc = int(capture.get(cv2.CAP_PROP_FOURCC))
-    assert fourcc.to_bytes(4, "little") == b"Z16 ", f"got fourcc {fourcc.to_bytes(4, 'little')!r}"
-    assert int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)) == WIDTH
-    assert int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)) == HEIGHT
-
-
-def test_frames_are_millimetres_and_arrive_at_rate(capture: cv2.VideoCapture) -> None:
-    """60 frames arrive at >= 25 Hz, each plausible depth in mm, and preprocess to a 32x32 input."""
-    frames, t0 = [], time.monotonic()
-    while len(frames) < 60:
-        ok, frame = capture.read()
-        assert ok, "read failed"
-        frames.append(_as_depth_mm(frame))
-    rate_hz = 60 / (time.monotonic() - t0)
-    print(f"D435 Z16 {WIDTH}x{HEIGHT}: {rate_hz:.1f} Hz")
-    assert rate_hz >= 25.0
-    depth_mm = frames[-1]
+async def test_mode_is_granted_and_frames_are_millimetres_at_rate(device: str) -> None:
+    """Z16 424x240 @ 30 Hz is granted as asked; 60 frames arrive at >= 25 Hz, stamped by the driver
+    less than 100 ms before they reach us, plausible depth in mm, preprocessed to a 32x32 input."""
+    async with UvcDepthSource(device, WIDTH, HEIGHT, FPS) as src:
+        assert src.granted == V4l2Mode("Z16 ", WIDTH, HEIGHT, FPS)
+        frames, ages_s, t0 = [], [], time.monotonic()
+        stream = src.frames()
+        while len(frames) < 60:
+            f = await asyncio.wait_for(anext(stream), 2.0)
+            ages_s.append(time.monotonic() - f.t_capture_mono_s)
+            frames.append(f)
+        rate_hz = 60 / (time.monotonic() - t0)
+        print(
+            f"D435 {src.granted} on {src.opened_device}: {rate_hz:.1f} Hz, timestamps {src.timestamps}, "
+            f"age p50 {1e3 * np.median(ages_s):.1f} ms max {1e3 * max(ages_s):.1f} ms"
+        )
+        assert rate_hz >= 25.0
+        assert src.timestamps == "driver", "no usable V4L2 buffer timestamps: capture time = arrival"
+        assert min(ages_s) >= 0.0 and max(ages_s) < 0.1
+    depth_mm = frames[-1].depth_mm
     valid = depth_mm > 0
     assert valid.mean() > 0.3, f"only {valid.mean():.0%} valid pixels"
     assert 200 < np.median(depth_mm[valid]) < 10_000, "median depth outside 0.2-10 m: units wrong?"
