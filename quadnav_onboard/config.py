@@ -13,7 +13,10 @@ A file that is empty, not UTF-8 text or not a mapping is refused too (:func:`loa
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import dataclasses
+import types
+import typing
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -105,12 +108,56 @@ def _adapter(cls: type[T]) -> pydantic.TypeAdapter[T]:
     return pydantic.TypeAdapter(cls)
 
 
+@cache
+def _field_types(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
+def _unwrap(tp: Any) -> Any:
+    """The type under ``Annotated[...]`` and ``X | None``."""
+    while True:
+        origin = typing.get_origin(tp)
+        if origin is Annotated:
+            tp = typing.get_args(tp)[0]
+        elif origin in (typing.Union, types.UnionType):
+            args = [a for a in typing.get_args(tp) if a is not type(None)]
+            if len(args) != 1:
+                return tp
+            tp = args[0]
+        else:
+            return tp
+
+
+def _booleans_for_numbers(tp: Any, value: Any, loc: str) -> Iterator[tuple[str, bool]]:
+    """(key path, value) of each boolean given for a numeric field under ``tp``: pydantic would
+    read ``true`` as 1 (YAML also reads yes/no/on/off as booleans), so ``speed_m_s: on`` flew at 1 m/s."""
+    tp = _unwrap(tp)
+    if isinstance(value, bool):
+        if tp in (int, float):
+            yield loc, value
+    elif dataclasses.is_dataclass(tp) and isinstance(value, Mapping):
+        hints = _field_types(tp)  # type: ignore[arg-type]
+        for key, item in value.items():
+            if key in hints:
+                yield from _booleans_for_numbers(hints[key], item, f"{loc}.{key}" if loc else str(key))
+    elif typing.get_origin(tp) is tuple and isinstance(value, (list, tuple)):
+        args = typing.get_args(tp)
+        variadic = len(args) == 2 and args[1] is Ellipsis
+        for i, item in enumerate(value):
+            if variadic or i < len(args):
+                yield from _booleans_for_numbers(args[0] if variadic else args[i], item, f"{loc}.{i}")
+
+
 def parse_config(cls: type[T], data: Any, source: str = "<config>") -> T:
     """Validate ``data`` (a mapping, e.g. from YAML; None = no keys) into the frozen dataclass ``cls``."""
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    booleans = list(_booleans_for_numbers(cls, data, ""))
+    if booleans:
+        why = "a number is needed, not a boolean"
+        raise ConfigError("\n".join(f"{source}: key '{loc}': bad value {v!r}: {why}" for loc, v in booleans))
     try:
         return _adapter(cls).validate_python(dict(data))
     except pydantic.ValidationError as exc:

@@ -97,3 +97,13 @@ def test_preprocessing_range_must_be_ordered(tmp_path):
     f.write_text("preprocess: {min_range_m: 5.0, max_range_m: 4.0}\n")
     with pytest.raises(ConfigError, match=r"min_range_m 5\.0 must be below max_range_m 4\.0"):
         load_yaml_config(PlannerConfig, f)
+
+
+@pytest.mark.parametrize("word", ["true", "yes", "on", "off"])
+def test_a_boolean_for_a_number_is_refused(tmp_path, word):
+    """``scale_m: on`` was read as 1.0 (YAML's booleans are numbers to pydantic): refused."""
+    f = tmp_path / "p.yaml"
+    f.write_text(f"primitives: {{scale_m: {word}}}\n")
+    needed = r"key 'primitives\.scale_m': bad value (True|False): a number is needed"
+    with pytest.raises(ConfigError, match=needed):
+        load_yaml_config(PlannerConfig, f)

@@ -1,5 +1,6 @@
-"""Every numeric config field, generated from the dataclasses: NaN, ±inf, 0, -1 and ±1e12 are
-each refused naming the file, the key and the value, or listed in ``MEANINGFUL`` with what they mean.
+"""Every numeric config field, generated from the dataclasses: NaN, ±inf, 0, -1, ±1e12 and booleans
+are each refused naming the file, the key and the value, or listed in ``MEANINGFUL`` with what they
+mean.
 
 The fields are found by walking the config dataclasses (nested sections, optional sections,
 fixed and variable tuples) rather than listed by hand, so a field added later is checked too.
@@ -32,7 +33,7 @@ from sim_harness.rl.config import TrainConfig, load_train_config
 
 REPO = Path(__file__).resolve().parents[1]
 
-VALUES: dict[str, float] = {
+VALUES: dict[str, float | bool] = {
     "nan": math.nan,
     "inf": math.inf,
     "-inf": -math.inf,
@@ -40,8 +41,11 @@ VALUES: dict[str, float] = {
     "negative": -1,
     "huge": 1e12,
     "-huge": -1e12,
+    "true": True,
+    "false": False,
 }
-"""The values tried in every numeric field."""
+"""The values tried in every numeric field (YAML reads yes/no/on/off as booleans, which pydantic
+would otherwise take for 1 and 0)."""
 
 MEANINGFUL: dict[tuple[str, str], str] = {
     # world positions: the origin and the negative half-axes are places like any other
