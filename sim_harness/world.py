@@ -38,10 +38,12 @@ from quadnav_onboard.config import ConfigError, load_yaml
 from quadnav_onboard.path import RoughPath
 
 __all__ = [
+    "MAX_SPEED_M_S",
     "TEST_WORLD_IDS",
     "TRAIN_WORLD_IDS",
     "WAYPOINT_CLEARANCE_M",
     "WORLDS_DIR",
+    "WORLD_LIMIT_M",
     "Box",
     "Cylinder",
     "Geometry",
@@ -59,6 +61,11 @@ __all__ = [
 WORLDS_DIR = Path(__file__).resolve().parent / "worlds"
 TRAIN_WORLD_IDS = (1, 2, 3, 4, 5, 6, 7)
 TEST_WORLD_IDS = (8, 9, 10)
+
+WORLD_LIMIT_M = 10_000.0
+"""Every coordinate and size (m) of a world file lies within ±10 km (yaw angles within ±360 deg)."""
+MAX_SPEED_M_S = 5.0
+"""Fastest moving setpoint (m/s) a world's path may ask for (the flight config's ``speed_m_s`` range)."""
 
 WAYPOINT_CLEARANCE_M = 0.3
 """Least distance (m) from every waypoint to the floor, the ceiling and each obstacle: the radius of
@@ -200,9 +207,11 @@ class World:
 # ---------------------------------------------------------------------------------------------- parsing
 
 
-def _number(value: Any, where: str, key: str) -> float:
+def _number(value: Any, where: str, key: str, limit: float = WORLD_LIMIT_M) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise WorldError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    if abs(value) > limit:
+        raise WorldError(f"{where}: '{key}' must be within ±{limit:g}, got {value!r}")
     return float(value)
 
 
@@ -253,7 +262,7 @@ def _parse_obstacle(entry: Any, where: str) -> Obstacle:
         size = _vec3(entry["size"], where, "size")
         if min(size) <= 0.0:
             raise WorldError(f"{where}: 'size' must be 3 positive numbers, got {list(entry['size'])!r}")
-        return Box(center, size, _number(entry.get("yaw_deg", 0.0), where, "yaw_deg"))
+        return Box(center, size, _number(entry.get("yaw_deg", 0.0), where, "yaw_deg", limit=360.0))
     if shape == "sphere":
         return Sphere(center, _positive(entry["radius"], where, "radius"))
     axis = entry.get("axis", "z")
@@ -280,6 +289,8 @@ def parse_world(mapping: Any, source: str = "<world>") -> World:
         raise WorldError(f"{where}: 'waypoints' must be a list of at least 2 [x, y, z] points, got {wps!r}")
     waypoints = [_vec3(p, f"{where}.waypoints[{k}]", "waypoint") for k, p in enumerate(wps)]
     speed = _positive(path_map.get("speed_m_s", 1.0), where, "speed_m_s")
+    if speed > MAX_SPEED_M_S:
+        raise WorldError(f"{where}: 'speed_m_s' must be at most {MAX_SPEED_M_S:g} m/s, got {speed!r}")
     try:
         rough = RoughPath(np.array(waypoints, dtype=np.float64), speed)
     except ValueError as exc:

@@ -310,3 +310,21 @@ def test_segments_may_cross_obstacles_and_waypoints_may_pass_close_by(tmp_path: 
     text = _BOUNDED + "obstacles:\n - {type: box, center: [3, 0, 2], size: [1, 4, 4]}\n" \
         " - {type: sphere, center: [5, 0.81, 2], radius: 0.5}\n"
     assert len(load_world(_write(tmp_path, text)).obstacles) == 2
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("name: a\npath: {waypoints: [[0,0,2],[1.0e+12,0,2]]}\n",
+         "'waypoint' must be within ±10000, got 1000000000000.0"),
+        ("name: a\npath: {waypoints: [[0,0,2],[9,0,2]], speed_m_s: 100}\n",
+         "'speed_m_s' must be at most 5 m/s"),
+        (_ob("{type: sphere, center: [4, 0, 2], radius: 1.0e+9}"), "'radius' must be within ±10000"),
+        (_ob("{type: box, center: [4, 5, 2], size: [1, 1, 1], yaw_deg: 1.0e+6}"),
+         "'yaw_deg' must be within ±360"),
+    ],
+)
+def test_absurd_world_numbers_are_refused(tmp_path: Path, text: str, needle: str) -> None:
+    with pytest.raises(WorldError) as info:
+        load_world(_write(tmp_path, text))
+    assert needle in str(info.value) and "w.yaml" in str(info.value)
