@@ -58,6 +58,16 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number in [0, 2**32), got {text}") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2**32), got {text}")
+    return value
+
+
 def _count(text: str) -> int:
     try:
         value = int(text)
@@ -121,12 +131,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--procedural-seed",
-        type=int,
+        type=_seed,
         default=4242,
         help="seed of the generated worlds (default 4242; training uses 20261124)",
     )
-    p.add_argument("--trials", type=int, default=5, help="trials per world (default 5, as in the paper)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the start jitter (default 0)")
+    p.add_argument("--trials", type=_count, default=5, help="trials per world (default 5, as in the paper)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the start jitter (default 0)")
     p.add_argument(
         "--start-jitter-m",
         type=_non_negative,
@@ -137,7 +147,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-steps",
-        type=int,
+        type=_count,
         default=None,
         help="step limit per flight (default 120, scaled with --primitive-scale)",
     )

@@ -265,3 +265,13 @@ def test_non_finite_flight_flags_are_refused(flag: str, value: str, capsys) -> N
     with pytest.raises(SystemExit) as exc:
         main(["eval", flag, value, "--no-progress"])
     assert exc.value.code == 2 and f"{flag}: must be" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"), [("--seed", "-1"), ("--procedural-seed", "-5"), ("--trials", "0")]
+)
+def test_seeds_and_counts_out_of_range_are_usage_errors(flag: str, value: str, capsys) -> None:
+    """A negative seed reached numpy after the model had loaded and ended in a traceback."""
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", flag, value, "--no-progress"])
+    assert exc.value.code == 2 and f"{flag}: must be" in capsys.readouterr().err
