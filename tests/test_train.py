@@ -303,3 +303,14 @@ def test_ctrl_c_before_the_first_episode_is_a_clean_exit(tmp_path, capsys, monke
     assert rc == 130
     err = capsys.readouterr().err
     assert "Traceback" not in err and "interrupted before the first episode" in err
+
+
+@pytest.mark.parametrize("content", [b"", b"\xff\xfe\x00garbage", b"[1, 2]"])
+def test_resume_from_a_corrupt_run_config_is_refused_without_a_traceback(tmp_path, capsys, content) -> None:
+    """A config.json of random bytes ended in a UnicodeDecodeError traceback."""
+    from sim_harness.cli import main
+
+    (tmp_path / "config.json").write_bytes(content)
+    assert main(["train", "--resume", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"{tmp_path / 'config.json'}" in err

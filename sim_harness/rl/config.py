@@ -243,5 +243,5 @@ def read_config_file(path: Path) -> dict[str, Any]:
     """A run's ``config.json`` as a dict (errors name the file)."""
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read the run config: {exc}") from exc
+    except (OSError, ValueError) as exc:  # ValueError: not UTF-8, or not JSON
+        raise ConfigError(f"{path}: cannot read the run config: {exc}") from None
