@@ -130,7 +130,7 @@ def _unwrap(tp: Any) -> Any:
 
 def _booleans_for_numbers(tp: Any, value: Any, loc: str) -> Iterator[tuple[str, bool]]:
     """(key path, value) of each boolean given for a numeric field under ``tp``: pydantic would
-    read ``true`` as 1 (YAML also reads yes/no/on/off as booleans), so ``speed_m_s: on`` flew at 1 m/s."""
+    read ``true`` as 1 (YAML also reads yes/no/on/off as booleans): ``speed_m_s: on`` is not 1 m/s."""
     tp = _unwrap(tp)
     if isinstance(value, bool):
         if tp in (int, float):

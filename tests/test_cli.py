@@ -66,7 +66,8 @@ def test_bad_config_files_are_refused_naming_file_key_value(
 def test_a_config_of_random_bytes_is_refused_with_exit_2(
     capsys: pytest.CaptureFixture[str], tmp_path: Path, model: Path
 ) -> None:
-    """A binary file ended in a UnicodeDecodeError traceback and exit 1 (systemd would restart it)."""
+    """A binary file is a configuration error (exit 2, which systemd does not restart), not a
+    UnicodeDecodeError traceback (exit 1)."""
     cfg = tmp_path / "junk.yaml"
     cfg.write_bytes(random.Random(1).randbytes(2048))
     code, _, err = run(capsys, "--dry-run", "--config", str(cfg), "--model", str(model), "--log-format=json")
@@ -76,7 +77,7 @@ def test_a_config_of_random_bytes_is_refused_with_exit_2(
 def test_an_empty_config_is_refused_not_flown_on_the_defaults(
     capsys: pytest.CaptureFixture[str], tmp_path: Path, model: Path
 ) -> None:
-    """An empty file made a dry run fly on the dataclass defaults instead of the sim config."""
+    """An empty file does not stand for the dataclass defaults: the dry run refuses it."""
     cfg = tmp_path / "empty.yaml"
     cfg.write_text("")
     code, _, err = run(capsys, "--dry-run", "--config", str(cfg), "--model", str(model), "--log-format=json")
@@ -87,7 +88,8 @@ def test_an_empty_config_is_refused_not_flown_on_the_defaults(
 def test_a_goal_radius_that_fakes_a_success_is_refused_before_arming(
     capsys: pytest.CaptureFixture[str], tmp_path: Path, model: Path, radius: str, value: str
 ) -> None:
-    """goal_radius_m: .inf armed, took off and reported goal_reached after 0 steps with exit 0."""
+    """A goal radius that would be met at the start ("goal_reached after 0 steps", exit 0) is
+    refused before arming, naming the file, the key and the value."""
     cfg = tmp_path / "f.yaml"
     cfg.write_text(f"mission: {{waypoints_m: [[0, 0, 1], [5, 0, 1]], goal_radius_m: {radius}}}\n")
     code, _, err = run(capsys, "--dry-run", "--config", str(cfg), "--model", str(model), "--log-format=json")

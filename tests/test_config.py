@@ -101,7 +101,7 @@ def test_preprocessing_range_must_be_ordered(tmp_path):
 
 @pytest.mark.parametrize("word", ["true", "yes", "on", "off"])
 def test_a_boolean_for_a_number_is_refused(tmp_path, word):
-    """``scale_m: on`` was read as 1.0 (YAML's booleans are numbers to pydantic): refused."""
+    """``scale_m: on`` is not 1.0 (pydantic would read YAML's booleans as numbers): refused."""
     f = tmp_path / "p.yaml"
     f.write_text(f"primitives: {{scale_m: {word}}}\n")
     needed = r"key 'primitives\.scale_m': bad value (True|False): a number is needed"

@@ -246,7 +246,7 @@ def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp
 
 @pytest.mark.parametrize("count", ["0", "-3", "two"])
 def test_procedural_needs_at_least_one_world(count: str, capsys) -> None:
-    """``--procedural 0`` silently ran the full paper evaluation; now it is a usage error."""
+    """``--procedural 0`` is a usage error, not the full paper evaluation."""
     with pytest.raises(SystemExit) as exc:
         main(["eval", "--procedural", count, "--no-progress"])
     assert exc.value.code == 2
@@ -254,7 +254,7 @@ def test_procedural_needs_at_least_one_world(count: str, capsys) -> None:
 
 
 def test_procedural_and_world_files_are_not_mixed(tmp_path, capsys) -> None:
-    """--procedural replaced the --world files without a word; giving both is refused."""
+    """--procedural does not replace the --world files without a word: giving both is refused."""
     model = save_checkpoint(tmp_path / "m.pt", DQN(NetworkConfig()))
     rc = main(["eval", "--model", str(model), "--world", "env01", "--procedural", "2", "--no-progress"])
     assert rc == 2 and "give --world or --procedural N, not both" in capsys.readouterr().err
@@ -271,7 +271,7 @@ def test_non_finite_flight_flags_are_refused(flag: str, value: str, capsys) -> N
     ("flag", "value"), [("--seed", "-1"), ("--procedural-seed", "-5"), ("--trials", "0")]
 )
 def test_seeds_and_counts_out_of_range_are_usage_errors(flag: str, value: str, capsys) -> None:
-    """A negative seed reached numpy after the model had loaded and ended in a traceback."""
+    """A negative seed is a usage error before anything loads, not a numpy traceback mid-run."""
     with pytest.raises(SystemExit) as exc:
         main(["eval", flag, value, "--no-progress"])
     assert exc.value.code == 2 and f"{flag}: must be" in capsys.readouterr().err

@@ -105,8 +105,8 @@ _LIMITS = [
 @pytest.mark.parametrize(("section", "key"), _LIMITS)
 @pytest.mark.parametrize("value", [float("inf"), 1e12])
 def test_an_infinite_or_absurd_limit_is_refused(tmp_path: Path, section: str, key: str, value: float) -> None:
-    """A limit of .inf or 1e12 would switch its check off (the daemon armed and flew): refused,
-    naming the file, the key and the value."""
+    """A limit of .inf or 1e12 would switch its check off: refused, naming the file, the key and
+    the value."""
     path = _lab_config_with(tmp_path, section, key, value)
     with pytest.raises(ConfigError) as info:
         load_flight_config(path)
@@ -166,7 +166,7 @@ def test_bad_waypoints_name_the_file_the_key_and_the_waypoint(
 
 
 def test_an_empty_flight_file_is_refused(tmp_path: Path) -> None:
-    """An empty file made a dry run fly on the dataclass defaults instead of the sim config."""
+    """An empty file does not stand for the dataclass defaults: refused, naming the file."""
     path = tmp_path / "empty.yaml"
     path.write_text("")
     with pytest.raises(ConfigError, match=r"empty\.yaml: the file is empty"):

@@ -182,8 +182,8 @@ def test_unwritable_path_is_a_clear_error(tmp_path):
 
 
 def test_a_record_is_never_opened_over_an_existing_file(tmp_path, writer):
-    """A quick restart used to overwrite the previous flight's record ("wb"): the file is now
-    created exclusively, and an existing one is refused and left as it was."""
+    """A record is created exclusively: a file already at its path (a quick restart's previous
+    flight) is refused and left as it was."""
     path = tmp_path / "f.mcap"
     path.write_bytes(b"the previous flight")
     with pytest.raises(RecordExistsError, match="the file exists"):
@@ -192,8 +192,8 @@ def test_a_record_is_never_opened_over_an_existing_file(tmp_path, writer):
 
 
 def test_flights_started_together_get_records_of_their_own(tmp_path, writer):
-    """Two flights in the same second wrote one unreadable file: names now carry microseconds,
-    and two recorders opened for the very same instant take the next free suffix; both read back."""
+    """Flights started together get a record each: names carry microseconds, and recorders opened
+    for the very same instant take the next free suffix; every record reads back."""
     t = 1_764_655_200.123456
     recs = [FlightRecorder.new_in(tmp_path, t_unix_s=t, metadata={"n": n}, writer=writer) for n in "012"]
     for rec in recs:

@@ -251,9 +251,9 @@ def test_procedural_families_flag_is_validated_and_names_the_key() -> None:
 
 
 def test_ctrl_c_saves_the_run_and_says_how_to_resume(tmp_path, capsys, monkeypatch) -> None:
-    """Ctrl-C during `quadnav-sim train` ended in a traceback with no word of --resume: now the
-    episodes finished are checkpointed, the command says how to resume (exit 130), and resuming
-    finishes the run without repeating an episode."""
+    """Ctrl-C during `quadnav-sim train` is no traceback: the episodes finished are checkpointed,
+    the command says how to resume (exit 130), and resuming finishes the run without repeating an
+    episode."""
     import sim_harness.rl.train as train_module
     from sim_harness.cli import main
     from sim_harness.env import VecQuadNavEnv
@@ -307,7 +307,7 @@ def test_ctrl_c_before_the_first_episode_is_a_clean_exit(tmp_path, capsys, monke
 
 @pytest.mark.parametrize("content", [b"", b"\xff\xfe\x00garbage", b"[1, 2]"])
 def test_resume_from_a_corrupt_run_config_is_refused_without_a_traceback(tmp_path, capsys, content) -> None:
-    """A config.json of random bytes ended in a UnicodeDecodeError traceback."""
+    """A config.json of random bytes, an empty one or a list is refused naming it, no traceback."""
     from sim_harness.cli import main
 
     (tmp_path / "config.json").write_bytes(content)

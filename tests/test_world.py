@@ -292,9 +292,9 @@ _BOUNDED = "name: a\npath: {waypoints: [[0,0,2],[5,0,2],[9,0,2]]}\nbounds: {floo
 def test_a_path_through_solids_or_out_of_bounds_is_refused_at_load(
     tmp_path: Path, text: str, needles: list[str]
 ) -> None:
-    """A start inside an obstacle crashed the dry run on take-off and counted as the policy's crash
-    in eval; a waypoint above the ceiling or below the floor was accepted everywhere. Now the world
-    is refused when it is loaded, naming the file and the waypoint."""
+    """A start inside an obstacle would crash on take-off (and count as the policy's crash in eval),
+    a waypoint above the ceiling or below the floor could never be flown: such a world is refused
+    when it is loaded, naming the file, the waypoint and what it is in."""
     path = _write(tmp_path, text)
     with pytest.raises(WorldError) as info:
         load_world(path)
