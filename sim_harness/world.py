@@ -17,8 +17,9 @@ A bad file raises :class:`WorldError` naming the file, the entry (``obstacles[3]
 Every waypoint of the path (its start and goal included) must lie in free space: above the floor,
 below the ceiling and outside every obstacle, with at least :data:`WAYPOINT_CLEARANCE_M` (the
 simulated quad's radius) to spare; a path starting inside a box would crash on take-off, and one
-above the ceiling could never be flown. The segments between waypoints may cross obstacles:
-flying round them is the planner's job.
+above the ceiling could never be flown. The take-off climb, straight up from the ground below the
+start (the floor, or z = 0 without one) as the emulated vehicle flies it, must be clear too. The
+segments between waypoints may cross obstacles: flying round them is the planner's job.
 Every world also carries :class:`Geometry`, the obstacles packed into arrays for the ray caster
 (:mod:`sim_harness.render`) and the collision checker (:mod:`sim_harness.collision`).
 """
@@ -317,6 +318,29 @@ def parse_world(mapping: Any, source: str = "<world>") -> World:
     return world
 
 
+def _check_takeoff_clear(world: World, source: str) -> None:
+    """Refuse a world whose take-off climb (straight up from the ground below the start to the
+    start) passes through or within :data:`WAYPOINT_CLEARANCE_M` of an obstacle."""
+    from sim_harness.collision import sweep_collides  # imports this module
+
+    start = world.path.start_m
+    ground_z = 0.0 if world.floor_z_m is None else world.floor_z_m
+    if start[2] <= ground_z:
+        return
+    climb = np.array([[start[0], start[1], ground_z], start])[:, None, :]
+    no_floor = World(world.name, world.path, ceiling_z_m=world.ceiling_z_m, obstacles=world.obstacles)
+    if not sweep_collides(no_floor, climb, WAYPOINT_CLEARANCE_M)[0]:  # the floor is the ground
+        return
+    for i, ob in enumerate(world.obstacles):
+        alone = World(name=world.name, path=world.path, obstacles=(ob,))
+        if sweep_collides(alone, climb, WAYPOINT_CLEARANCE_M)[0]:
+            raise WorldError(
+                f"{source}: path.waypoints[0] {start.tolist()} (the start): the take-off from the ground "
+                f"below it (z {ground_z:g}) passes through obstacles[{i}] ({type(ob).__name__.lower()} at "
+                f"{list(ob.center_m)})"
+            )
+
+
 def _check_waypoints_free(world: World, source: str) -> None:
     """Refuse a waypoint (start and goal included) below the floor, above the ceiling or inside an
     obstacle, or nearer to any of them than :data:`WAYPOINT_CLEARANCE_M`; the error names the
@@ -346,6 +370,7 @@ def _check_waypoints_free(world: World, source: str) -> None:
                 what = "inside" if c < 0 else f"within {r} m of"
                 raise WorldError(f"{where}: {what} obstacles[{i}] ({type(ob).__name__.lower()} at "
                                  f"{list(ob.center_m)})")
+    _check_takeoff_clear(world, source)
 
 
 def load_world(path: str | Path) -> World:

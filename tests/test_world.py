@@ -287,6 +287,9 @@ _BOUNDED = "name: a\npath: {waypoints: [[0,0,2],[5,0,2],[9,0,2]]}\nbounds: {floo
          ["path.waypoints[0] [0.0, 0.0, -1.0] (the start)", "below the floor (bounds.floor_z 0.0)"]),
         ("name: a\npath: {waypoints: [[0,0,2],[9,0,0.1]]}\nbounds: {floor_z: 0.0}\n",
          ["path.waypoints[1] [9.0, 0.0, 0.1] (the goal)", "within 0.3 m of the floor"]),
+        (_BOUNDED + "obstacles:\n - {type: box, center: [0, 0, 0.5], size: [1, 1, 1]}\n",
+         ["path.waypoints[0] [0.0, 0.0, 2.0] (the start)", "the take-off from the ground below it (z 0)",
+          "passes through obstacles[0] (box at [0.0, 0.0, 0.5])"]),
     ],
 )
 def test_a_path_through_solids_or_out_of_bounds_is_refused_at_load(
