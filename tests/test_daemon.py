@@ -512,3 +512,35 @@ async def test_a_link_that_comes_back_gets_the_stop_it_was_holding(forward_polic
     s = await rig.in_mission_then(lambda: asyncio.ensure_future(blip()), min_steps=2)
     assert s.stop_reason == "stale_odometry", s
     assert rig.commands()[-2:] == ["hold", "land"]
+
+
+async def test_a_link_that_falls_silent_during_the_hold_gets_no_land(forward_policy: Policy) -> None:
+    """Stale depth: hold; the link then dies during the hold: land is not sent and no land timeout
+    is waited out; the stop stays the one that started the ladder."""
+    cfg = fast_config()
+    cfg = dataclasses.replace(cfg, safety=dataclasses.replace(cfg.safety, hold_before_land_s=1.0))
+    rig = Rig(forward_policy, cfg)
+
+    async def cut_at_hold() -> None:
+        rig.depth.paused = True
+        await rig.when(lambda: "hold" in rig.commands())
+        rig.vehicle.link_up = False
+
+    s = await rig.in_mission_then(lambda: asyncio.ensure_future(cut_at_hold()), min_steps=2)
+    assert s.stop_reason == "stale_depth", s
+    assert rig.commands()[-1] == "hold" and "land" not in rig.commands()
+
+
+async def test_a_vehicle_that_disarmed_during_the_hold_is_not_landed(forward_policy: Policy) -> None:
+    cfg = fast_config()
+    cfg = dataclasses.replace(cfg, safety=dataclasses.replace(cfg.safety, hold_before_land_s=0.5))
+    rig = Rig(forward_policy, cfg)
+
+    async def disarm_at_hold() -> None:
+        rig.depth.paused = True
+        await rig.when(lambda: "hold" in rig.commands())
+        rig.vehicle.state.armed = False  # a crash, or the pilot's kill switch
+
+    s = await rig.in_mission_then(lambda: asyncio.ensure_future(disarm_at_hold()), min_steps=2)
+    assert s.stop_reason == "stale_depth", s
+    assert rig.commands()[-1] == "hold"

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from quadnav_onboard.config import ConfigError
@@ -88,6 +89,32 @@ def test_crash_now_crashes_and_reports_it() -> None:
         text = gcs.wait("STATUSTEXT", 1.0, lambda s: "crash" in str(s.text))
         assert text is not None
         assert emu.crashed and not emu.armed
+
+
+def test_a_crash_in_flight_shows_in_the_attitude_and_the_vehicle_falls() -> None:
+    """What a real vehicle reports of a crash: tipped over, disarmed, an emergency, on the floor."""
+    from quadnav_onboard.frames import quat_to_rotmat
+
+    with Px4Emulator(None, FAST, api_port=(port := free_udp_port())) as emu, RawGcs(port) as gcs:
+        for _ in range(4):
+            gcs.setpoint_ned(0.0, 0.0, -1.5)
+            gcs.pump(0.05)
+        assert gcs.arm() == m.MAV_RESULT_ACCEPTED
+        assert gcs.set_mode("OFFBOARD") == m.MAV_RESULT_ACCEPTED
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            gcs.setpoint_ned(0.0, 0.0, -1.5)
+            gcs.pump(0.05)
+        assert emu.true_pose().pos_world_m[2] > 1.0
+        emu.faults.crash_now()
+        att = gcs.wait("ATTITUDE_QUATERNION", 1.0, lambda a: abs(a.q1) < 0.9)
+        assert att is not None
+        tilt = np.degrees(np.arccos(quat_to_rotmat([att.q1, att.q2, att.q3, att.q4])[2, 2]))
+        assert tilt > 80.0
+        hb = gcs.wait("HEARTBEAT", 1.0, lambda h: h.system_status == m.MAV_STATE_EMERGENCY)
+        assert hb is not None and not hb.base_mode & m.MAV_MODE_FLAG_SAFETY_ARMED
+        assert emu.wait_for(lambda e: e.true_pose().pos_world_m[2] == 0.0, 2.0)
+        assert emu.wait_for(lambda e: e.landed_state == "ON_GROUND", 1.0)
 
 
 def test_a_scenario_file_schedules_faults(tmp_path: Path) -> None:

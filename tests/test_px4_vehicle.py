@@ -128,3 +128,14 @@ def test_yaw_turns_towards_the_setpoint_at_the_rate_limit() -> None:
         v.on_setpoint(Setpoint(np.array([0.0, 0.0, 1.0]), None, 1.5, t))
         v.tick(t, DT)
     assert v.yaw_rad == pytest.approx(0.5, abs=0.02)
+
+
+def test_a_crash_in_the_air_falls_from_where_it_hit_and_lies_on_the_floor() -> None:
+    v, t = airborne(z=1.5)
+    v.crash(t, "test")
+    assert v.crashed and not v.armed and v.landed_state == "IN_AIR"
+    assert v.pos_world_m[2] > 1.4  # not teleported to the floor
+    t = run(v, t, 0.2)
+    assert 0.0 < v.pos_world_m[2] < 1.4  # falling
+    run(v, t, 1.0)
+    assert v.pos_world_m[2] == 0.0 and v.landed_state == "ON_GROUND"

@@ -10,6 +10,7 @@ import pytest
 
 from quadnav_onboard.daemon.config import SafetyConfig
 from quadnav_onboard.daemon.supervisor import (
+    LINK_QUIET_FRACTION,
     ExitCode,
     FlightSnapshot,
     FrozenPositionWatch,
@@ -151,11 +152,11 @@ def test_a_changed_link_source_is_a_link_fault_and_a_silent_link_outranks_it() -
     assert found is not None and found[0] is StopReason.LINK_LOST
 
 
-def test_the_link_is_quiet_once_silent_longer_than_odometry_may_be_stale() -> None:
+def test_the_link_is_quiet_before_odometry_riding_it_goes_stale() -> None:
     snap = healthy()
     assert not link_quiet(snap, CFG)
-    snap.vehicle.t_last_msg_mono_s = NOW - CFG.stale_odometry_s - 0.01
-    assert link_quiet(snap, CFG)
+    snap.vehicle.t_last_msg_mono_s = NOW - CFG.stale_odometry_s * LINK_QUIET_FRACTION - 0.001
+    assert link_quiet(snap, CFG) and LINK_QUIET_FRACTION < 1.0
     assert check_in_flight(snap, CFG) is None  # quiet is not yet lost
 
 

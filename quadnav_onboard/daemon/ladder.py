@@ -97,6 +97,9 @@ class StopLadder(Loops):
         if not self._link_alive():
             self._release(reason, "the vehicle's link is silent: no commands into a dead link")
             return
+        if not self.vehicle.state.armed:
+            self._release(reason, "the vehicle is disarmed: nothing to hold or land")
+            return
         await self.command_hold()
         land = (
             self.cfg.mission.land_at_goal
@@ -107,6 +110,9 @@ class StopLadder(Loops):
             return
         if not await self._hold_for(self.cfg.safety.hold_before_land_s):
             self._release(reason, "the vehicle's link fell silent during the hold: land not sent")
+            return
+        if not self.vehicle.state.armed:
+            self._release(reason, "the vehicle disarmed during the hold: nothing to land")
             return
         if self.vehicle.state.mode not in ("HOLD", "OFFBOARD") and self.vehicle.state.armed:
             log.warning("land_skipped", mode=self.vehicle.state.mode, detail="pilot took over during hold")

@@ -23,6 +23,7 @@ from quadnav_onboard.vehicle import MAV_STATE_EMERGENCY, VehicleState
 
 __all__ = [
     "CRASH_TILT_RAD",
+    "LINK_QUIET_FRACTION",
     "ExitCode",
     "FlightSnapshot",
     "FrozenPositionWatch",
@@ -163,11 +164,19 @@ def crash_evidence(v: VehicleState, in_mission: bool) -> str | None:
     return None
 
 
+LINK_QUIET_FRACTION = 0.5
+"""The link is quiet after this fraction of ``min(stale_odometry_s, link_timeout_s)`` without a
+message: odometry riding a dying link is then found stale only while the link is already quiet
+(the two fall silent within a telemetry period of each other)."""
+
+
 def link_quiet(s: FlightSnapshot, cfg: SafetyConfig) -> bool:
-    """Nothing heard from the vehicle for longer than odometry may be stale: another stop found
+    """Nothing heard from the vehicle for a while (:data:`LINK_QUIET_FRACTION`): another stop found
     now may be the link dying (odometry and telemetry ride it), so it waits for the link's verdict
-    (back: that stop; silent past ``link_timeout_s``: ``link_lost``)."""
-    return s.t_mono_s - s.vehicle.t_last_msg_mono_s > min(cfg.stale_odometry_s, cfg.link_timeout_s)
+    (back: that stop; silent past ``link_timeout_s``: ``link_lost``). A live link ends the wait
+    with its next message (PX4 streams at 30-50 Hz), so a false alarm costs a few milliseconds."""
+    quiet_s = LINK_QUIET_FRACTION * min(cfg.stale_odometry_s, cfg.link_timeout_s)
+    return s.t_mono_s - s.vehicle.t_last_msg_mono_s > quiet_s
 
 
 def check_in_flight(s: FlightSnapshot, cfg: SafetyConfig) -> tuple[StopReason, str] | None:

@@ -82,6 +82,8 @@ class LinkFlight:
             odometry=self.odometry,
             vehicle=self.vehicle,
         )
+        self.t_start: float | None = None
+        """When ``daemon.run()`` was called (monotonic s)."""
         self.t_fault: float | None = None
         """When the fault was injected (monotonic s)."""
         self.t_stop: float | None = None
@@ -110,6 +112,7 @@ class LinkFlight:
             fault(self)  # type: ignore[misc]
 
         task = asyncio.ensure_future(inject()) if fault else None
+        self.t_start = time.monotonic()
         try:
             return await asyncio.wait_for(self.daemon.run(), timeout_s)
         finally:
