@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -83,7 +84,12 @@ def run_vehicle(spec: dict[str, Any], stop: _Exit) -> int:
     from sim_harness.truth import TruthBlock
 
     world = _load_world(spec)
-    cfg = EmulatorConfig(**spec.get("emulator", {}))
+    cfg = EmulatorConfig()
+    if spec.get("emulator_config"):
+        from quadnav_onboard.config import load_yaml_config
+
+        cfg = load_yaml_config(EmulatorConfig, spec["emulator_config"])
+    cfg = dataclasses.replace(cfg, **spec.get("emulator", {}))
     truth = TruthBlock.attach(spec["truth"])
     t0 = time.monotonic()
     collide = _collision_fn(world, cfg.quad.radius_m)  # compile (or load) the collision kernel now

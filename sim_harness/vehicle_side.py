@@ -77,6 +77,7 @@ class VehicleSide:
         camera: dict[str, Any] | None = None,
         mocap: dict[str, Any] | None = None,
         emulator: dict[str, Any] | None = None,
+        emulator_config: str | Path | None = None,
         scenario: str | Path | None = None,
         gcs_port: int | None = None,
         parts: tuple[str, ...] = PART_NAMES,
@@ -91,6 +92,7 @@ class VehicleSide:
         self._camera = dict(camera or {})
         self._mocap = dict(mocap or {})
         self._emulator = dict(emulator or {})
+        self._emulator_config = str(emulator_config) if emulator_config is not None else None
         self._scenario = str(scenario) if scenario is not None else None
         self._gcs_port = gcs_port
         self._wanted = tuple(p for p in PART_NAMES if p in parts)
@@ -133,6 +135,7 @@ class VehicleSide:
         specs = {
             "vehicle": {**common, "world": str(self.world_path), "api_port": self.api_port,
                         "gcs_port": self._gcs_port, "emulator": self._emulator,
+                        "emulator_config": self._emulator_config,
                         "scenario": self._scenario},
             "camera": {**common, "world": str(self.world_path),
                        "socket": str(self.run_dir / "depth.sock"), **self._camera},

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -271,3 +272,86 @@ def _alive(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # a zombie has exited
     except FileNotFoundError:
         return False
+
+
+# --- the daemon as on a vehicle, against a standalone `quadnav-sim serve` -------------------------
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_daemon_with_config_serve_flies_a_standalone_serve_after_the_go(world: Path, tmp_path: Path) -> None:
+    import yaml
+
+    repo = Path(__file__).resolve().parents[1]
+    run_dir = tmp_path / "run"
+    api_port, mocap_port = free_udp_port(), free_udp_port()
+    cfg = yaml.safe_load((repo / "config" / "serve.yaml").read_text())
+    cfg["mission"]["waypoints_m"] = [[0.0, 0.0, 1.5], [6.0, 0.0, 1.5]]
+    cfg["vehicle"]["url"] = f"udpin://127.0.0.1:{api_port}"
+    cfg["depth"]["socket_path"] = str(run_dir / "depth.sock")
+    cfg["odometry"]["port_command"] = mocap_port
+    cfg["trigger"]["socket_path"] = str(tmp_path / "go.sock")
+    cfg["record"]["directory"] = str(tmp_path / "records")
+    config = tmp_path / "serve.yaml"
+    config.write_text(yaml.safe_dump(cfg))
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "sim_harness.cli", "serve", "--world", str(world), "--api-port", str(api_port),
+         "--mocap-port", str(mocap_port), "--run-dir", str(run_dir), "--heartbeat-hz", "10"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        assert serve.stdout is not None
+        lines = [serve.stdout.readline() for _ in range(4)]
+        assert any(f"udpin://0.0.0.0:{api_port}" in line for line in lines), lines
+        daemon = subprocess.Popen(
+            [sys.executable, "-m", "quadnav_onboard.cli", "--config", str(config), "--json"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        try:
+            go = str(tmp_path / "go.sock")
+            deadline = time.monotonic() + 60
+            answer = None
+            while time.monotonic() < deadline and daemon.poll() is None:
+                out = subprocess.run([sys.executable, "-m", "quadnav_onboard.trigger", "GO", "--socket", go],
+                                     capture_output=True, text=True, check=False)
+                if out.returncode == 0:
+                    answer = out.stdout
+                    break
+                time.sleep(0.5)
+            assert answer is not None, daemon.stderr.read() if daemon.poll() is not None else "no go socket"
+            out_text, err_text = daemon.communicate(timeout=120)
+        finally:
+            if daemon.poll() is None:
+                daemon.kill()
+    finally:
+        serve.send_signal(signal.SIGINT)
+        serve.communicate(timeout=20)
+    import json
+
+    summary = json.loads(out_text.strip().splitlines()[-1])
+    assert daemon.returncode == 0 and summary["stop_reason"] == "goal_reached", err_text[-2000:]
+    assert summary["startup"]["kernels_compiled_in_flight"] == {}
+    assert list((tmp_path / "records").glob("*.mcap"))
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_first_dry_run_with_no_compiled_cache_reaches_the_goal(world: Path, tmp_path: Path) -> None:
+    """Every kernel compiles from nothing (numba's cache pointed at an empty folder: no cache the
+    package wrote is found), yet the flight reaches the goal and nothing compiles after arming."""
+    import json
+
+    cache = tmp_path / "numba-cache"
+    cache.mkdir()
+    out = subprocess.run(
+        [sys.executable, "-m", "quadnav_onboard.cli", "--dry-run", "--world", str(world), "--json",
+         "--no-record"],
+        env={**os.environ, "NUMBA_CACHE_DIR": str(cache)}, capture_output=True, text=True, timeout=240,
+        check=False,
+    )
+    summary = json.loads(out.stdout.strip().splitlines()[-1])
+    assert out.returncode == 0 and summary["stop_reason"] == "goal_reached", out.stderr[-2000:]
+    assert summary["startup"]["kernels_compiled_in_flight"] == {}
+    assert summary["startup"]["ready_s"] > summary["startup"]["warmup_s"] > 0
+    written = {p.parts[len(cache.parts)].split("_")[0] for p in cache.rglob("*.nbi")}
+    assert {"quadnav", "sim"} <= written  # the daemon's and the sim's kernels were compiled here
