@@ -7,8 +7,11 @@ and raises :class:`ConfigError` whose message names the file, the key path and t
 Every numeric field is finite (``allow_inf_nan: False`` in each class's pydantic config, so NaN
 and infinity are refused as "should be a finite number") and bounded on both sides by a stated
 physical range, given in its docstring: an infinite or absurd limit would switch its check off.
-A file that is empty, not UTF-8 text or not a mapping is refused too (:func:`load_yaml_config`);
-``{}`` asks for the defaults explicitly.
+A boolean is not a number (YAML reads yes/no/on/off as booleans). A file that is empty, not UTF-8
+text or not a mapping is refused too (:func:`load_yaml_config`); ``{}`` asks for the defaults.
+tests/test_config_fuzz.py tries NaN, ±inf, 0, -1, ±1e12 and booleans in every numeric field it
+finds by walking these dataclasses; the 0 and negative values a field means something by (world
+coordinates, "land at once", "no shadow points", ...) are listed there, each with its meaning.
 """
 
 from __future__ import annotations
