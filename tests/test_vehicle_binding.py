@@ -165,3 +165,25 @@ async def test_a_vision_forward_before_connecting_is_not_connected() -> None:
     with pytest.raises(VehicleError) as err:
         await v.send_vision_position(np.zeros(3), np.array([1.0, 0, 0, 0]), 1.0)
     assert err.value.kind is VehicleErrorKind.NOT_CONNECTED
+
+
+@pytest.mark.e2e
+async def test_on_a_link_not_owned_two_system_ids_seen_by_mavsdk_are_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Serial and TCP links are MAVSDK's: its list of systems still tells two system IDs apart."""
+    import quadnav_onboard.vehicle as vehicle_module
+    from sim_harness.px4 import EmulatorConfig, Px4Emulator
+
+    monkeypatch.setattr(vehicle_module, "guarded_address", lambda url: None)
+    port = free_udp_port()
+    one, two = EmulatorConfig(heartbeat_hz=10.0), EmulatorConfig(heartbeat_hz=10.0, system_id=2)
+    with Px4Emulator(None, one, api_port=port), Px4Emulator(None, two, api_port=port):
+        v = MavsdkVehicle(f"udpin://127.0.0.1:{port}", connect_timeout_s=10.0, bind_listen_s=1.0)
+        try:
+            with pytest.raises(VehicleError) as err:
+                await v.connect()
+            assert err.value.kind is VehicleErrorKind.BINDING
+            assert v.state.binding is None
+        finally:
+            await v.close()

@@ -451,6 +451,7 @@ class Loops:
                 self.deferred_stop = found
                 self.stats.stops_deferred_for_link += 1
                 self.streaming = False
+                self.recorder.event(snap.t_mono_s, "stop_deferred", found[1], reason=found[0].value)
                 log.warning(
                     "stop_deferred",
                     reason=found[0].value,
