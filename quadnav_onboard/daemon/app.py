@@ -244,6 +244,9 @@ class FlightDaemon(StopLadder):
             if exc.kind is VehicleErrorKind.BINDING:
                 raise PreflightError(PreflightCheck("vehicle", False, str(exc), retry=False)) from exc
             raise
+        bound = self.vehicle.state.binding
+        if bound is not None:
+            self.recorder.event(time.monotonic(), "vehicle_bound", str(bound), system_id=bound.system_id)
         self._background.append(tg.create_task(self.watch_vehicle(), name="telemetry"))
 
     async def _preflight(self) -> None:
