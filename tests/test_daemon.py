@@ -412,8 +412,8 @@ async def test_the_heap_is_frozen_for_the_flight_and_released_after(forward_poli
 
 
 def test_bench_daemon_thread_cpu_names_the_thread_that_worked() -> None:
-    """benchmarks/bench_daemon.py's CPU by thread (docs/daemon.md): a named thread that spins for
-    0.6 s shows up under its name, with the CPU it had used by the last sample taken while it
+    """benchmarks/bench_daemon.py's CPU by thread (docs/daemon.md): a named thread that spins until
+    it is sampled shows up under its name, with the CPU it had used by the last sample taken while it
     lived; an idle one does not."""
     import sys
     import threading
@@ -423,17 +423,19 @@ def test_bench_daemon_thread_cpu_names_the_thread_that_worked() -> None:
 
     cpu = bench_daemon.ThreadCpu()
     t0 = time.monotonic()
+    sampled = threading.Event()
 
-    def spin() -> None:
-        while time.monotonic() - t0 < 0.6:
+    def spin() -> None:  # until the sample below is taken (a wall-clock end races a starved main thread)
+        while not sampled.is_set():
             pass
 
     busy = threading.Thread(target=spin, name="busy-bench")
-    idle = threading.Thread(target=time.sleep, args=(0.6,), name="idle-bench")
+    idle = threading.Thread(target=sampled.wait, name="idle-bench")
     for t in (busy, idle):
         t.start()
     time.sleep(0.4)
     cpu.sample()  # while both live: their names and CPU so far
+    sampled.set()
     for t in (busy, idle):
         t.join()
     cpu.sample()  # both gone: they keep the last sample
