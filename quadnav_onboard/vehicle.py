@@ -102,6 +102,8 @@ class VehicleState:
     """PX4's position estimate (world, m), shape (3,)."""
     vel_world_m_s: NDArray[np.float64] = field(default_factory=lambda: np.full(3, np.nan))
     """PX4's velocity estimate (world, m/s), shape (3,)."""
+    t_position_mono_s: float = -math.inf
+    """Monotonic time (s) the newest position estimate arrived."""
     t_last_msg_mono_s: float = -math.inf
     """Monotonic time (s) of the newest message of any kind from the autopilot."""
     t_mode_mono_s: float = -math.inf
@@ -324,7 +326,7 @@ class MavsdkVehicle:
 
     async def _watch_position(self) -> None:
         async for pv in self._telemetry.subscribe_position_velocity_ned():
-            self._touch()
+            self.state.t_position_mono_s = self._touch()
             p, v = pv.position, pv.velocity
             self.state.pos_world_m = ned_to_enu([p.north_m, p.east_m, p.down_m])
             self.state.vel_world_m_s = ned_to_enu([v.north_m_s, v.east_m_s, v.down_m_s])

@@ -171,32 +171,51 @@ def test_a_frozen_position_is_bad_odometry() -> None:
     assert found is not None and found[0] is StopReason.BAD_ODOMETRY
 
 
-def feed(watch: FrozenPositionWatch, cmd_speed_m_s: float, pos_speed_m_s: float, duration_s: float = 0.5):
-    for k in range(int(duration_s * 50) + 1):
-        t = k / 50
+def feed(
+    watch: FrozenPositionWatch, cmd_speed_m_s: float, pos_speed_m_s: float, duration_s: float = 0.5,
+    rate_hz: float = 50.0, t0: float = 0.0,
+) -> float:
+    """Reports at ``rate_hz`` for ``duration_s``; returns the last report's time."""
+    t = t0
+    for k in range(int(duration_s * rate_hz) + 1):
+        t = t0 + k / rate_hz
         watch.add(t, np.array([cmd_speed_m_s * t, 0.0, 1.5]), np.array([pos_speed_m_s * t, 0.0, 1.5]))
+    return t
 
 
 def test_a_position_that_stands_still_while_the_setpoint_moves_is_frozen() -> None:
     w = FrozenPositionWatch("odometry")
-    feed(w, 1.0, 0.0)
-    assert w.verdict() is not None
+    t = feed(w, 1.0, 0.0)
+    assert w.verdict(t) is not None
 
 
 @pytest.mark.parametrize(("cmd", "pos"), [(1.0, 0.05), (0.0, 0.0), (0.2, 0.0)])
 def test_a_moving_position_or_a_still_setpoint_is_not_frozen(cmd: float, pos: float) -> None:
     w = FrozenPositionWatch("odometry")
-    feed(w, cmd, pos)
-    assert w.verdict() is None
+    t = feed(w, cmd, pos)
+    assert w.verdict(t) is None
 
 
 def test_the_frozen_watch_needs_a_full_window_and_forgets_on_nan() -> None:
     w = FrozenPositionWatch("odometry", window_s=0.3)
-    feed(w, 1.0, 0.0, duration_s=0.2)
-    assert w.verdict() is None
-    feed(w, 1.0, 0.0)
-    w.add(1.0, np.array([1.0, 0.0, 1.5]), np.full(3, math.nan))
-    assert w.verdict() is None
+    t = feed(w, 1.0, 0.0, duration_s=0.2)
+    assert w.verdict(t) is None
+    t = feed(w, 1.0, 0.0, t0=t + 0.02)
+    assert w.verdict(t) is not None
+    w.add(t + 0.02, np.array([1.0, 0.0, 1.5]), np.full(3, math.nan))
+    assert w.verdict(t + 0.02) is None
+
+
+def test_repeated_timestamps_are_not_fresh_reports_and_a_silent_source_is_no_verdict() -> None:
+    """A source read at 50 Hz that reports at 2 Hz: the same report read again is not evidence."""
+    w = FrozenPositionWatch("PX4's position estimate")
+    for k in range(50):  # 1 s of supervisor ticks, reports only at 0.0 and 0.5 s
+        t_report = 0.0 if k < 25 else 0.5
+        w.add(t_report, np.array([k / 50, 0.0, 1.5]), np.array([0.0, 0.0, 1.5]))
+    assert w.verdict(0.98) is None  # two reports, not four
+    w = FrozenPositionWatch("odometry")
+    t = feed(w, 1.0, 0.0)
+    assert w.verdict(t) is not None and w.verdict(t + 1.0) is None  # then nothing came
 
 
 # --- pre-flight ---------------------------------------------------------------------------------

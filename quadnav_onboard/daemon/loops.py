@@ -380,28 +380,25 @@ class Loops:
             inference_s=(now - running) if running is not None else self.last_inference_s,
             crashed=bool(probe()) if probe is not None else False,
             depth_error=self.depth_error,
-            frozen_position=self._frozen_verdict(now, pos),
+            frozen_position=self._frozen_verdict(now, odom),
             vision_forward_failing_s=(
                 0.0 if self.t_forward_failing_since is None else now - self.t_forward_failing_since
             ),
         )
 
-    def _frozen_verdict(self, now: float, odom_pos: np.ndarray) -> str | None:
-        """Feed the frozen-position watches (the daemon's odometry, PX4's estimate) while the
-        mission streams setpoints; the first verdict, if any."""
+    def _frozen_verdict(self, now: float, odom: OdometrySample | None) -> str | None:
+        """Feed the frozen-position watches (the daemon's odometry, PX4's estimate) with their
+        fresh reports while the mission streams setpoints; the first verdict, if any."""
         cmd = self.last_setpoint_world_m
-        if not (self.in_mission and self.streaming) or cmd is None:
+        if not (self.in_mission and self.streaming) or cmd is None or odom is None:
             for w in self.frozen_watches:
                 w.reset()
             return None
         odom_w, px4_w = self.frozen_watches
-        odom_w.add(now, cmd, odom_pos)
+        odom_w.add(odom.t_arrival_mono_s, cmd, odom.pos_world_m)
         st = self.vehicle.state
-        if now - st.t_last_msg_mono_s <= self.cfg.safety.stale_odometry_s:  # fresh telemetry only
-            px4_w.add(now, cmd, st.pos_world_m)
-        else:
-            px4_w.reset()
-        return odom_w.verdict() or px4_w.verdict()
+        px4_w.add(st.t_position_mono_s, cmd, st.pos_world_m)
+        return odom_w.verdict(now) or px4_w.verdict(now)
 
     async def supervise(self) -> None:
         """In-flight checks at ``safety.check_rate_hz``; also feeds the systemd watchdog."""

@@ -234,50 +234,66 @@ def check_in_flight(s: FlightSnapshot, cfg: SafetyConfig) -> tuple[StopReason, s
 class FrozenPositionWatch:
     """Is a position source stuck while the vehicle is commanded to move?
 
-    Fed (time, commanded setpoint, reported position) at the supervisor's rate. Frozen: over the
-    last ``window_s`` the setpoint travelled at least ``min_commanded_m`` while the reported
+    Fed each fresh report of the source (its own timestamp; a repeated timestamp is not a new
+    report) with the setpoint commanded then. Frozen: over the last ``window_s``, at least
+    ``min_reports`` reports, the setpoint travelled at least ``min_commanded_m`` and the reported
     position stayed within ``max_still_m`` of where the window began. A live estimate (mocap or
     PX4's EKF) moves by more than a millimetre under any commanded motion, so identical positions
     with fresh timestamps are a frozen estimator.
     """
 
     def __init__(
-        self, name: str, window_s: float = 0.3, min_commanded_m: float = 0.15, max_still_m: float = 1e-3
+        self,
+        name: str,
+        window_s: float = 0.3,
+        min_commanded_m: float = 0.15,
+        max_still_m: float = 1e-3,
+        min_reports: int = 4,
     ) -> None:
         self.name = name
         self.window_s = window_s
         self.min_commanded_m = min_commanded_m
         self.max_still_m = max_still_m
+        self.min_reports = min_reports
         self._samples: deque[tuple[float, NDArray[np.float64], NDArray[np.float64]]] = deque()
 
     def reset(self) -> None:
         self._samples.clear()
 
     def add(
-        self, t_mono_s: float, commanded_world_m: NDArray[np.float64], reported_world_m: NDArray[np.float64]
+        self,
+        t_report_mono_s: float,
+        commanded_world_m: NDArray[np.float64],
+        reported_world_m: NDArray[np.float64],
     ) -> None:
+        """One report of the source at ``t_report_mono_s`` (monotonic s); world frame, m, (3,)."""
+        if self._samples and t_report_mono_s <= self._samples[-1][0]:
+            return  # not a new report
         cmd = np.asarray(commanded_world_m, dtype=np.float64)
         rep = np.asarray(reported_world_m, dtype=np.float64)
-        if not (np.all(np.isfinite(cmd)) and np.all(np.isfinite(rep))):
+        if not (math.isfinite(t_report_mono_s) and np.all(np.isfinite(cmd)) and np.all(np.isfinite(rep))):
             self.reset()
             return
-        self._samples.append((t_mono_s, cmd, rep))
-        while len(self._samples) > 2 and self._samples[1][0] <= t_mono_s - self.window_s:
+        self._samples.append((t_report_mono_s, cmd, rep))
+        while len(self._samples) > 2 and self._samples[1][0] <= t_report_mono_s - self.window_s:
             self._samples.popleft()
 
-    def verdict(self) -> str | None:
-        """A message when frozen, else None."""
-        if len(self._samples) < 3 or self._samples[-1][0] - self._samples[0][0] < self.window_s:
+    def verdict(self, now_mono_s: float) -> str | None:
+        """A message when frozen now, else None (also when the newest report is older than the
+        window: a silent source is the staleness checks' business)."""
+        if len(self._samples) < self.min_reports:
+            return None
+        t_first, t_last = self._samples[0][0], self._samples[-1][0]
+        if t_last - t_first < self.window_s or now_mono_s - t_last > self.window_s:
             return None
         cmds = np.stack([c for _, c, _ in self._samples])
         reps = np.stack([r for _, _, r in self._samples])
         commanded = float(np.linalg.norm(np.diff(cmds, axis=0), axis=1).sum())
         moved = float(np.linalg.norm(reps - reps[0], axis=1).max())
         if commanded >= self.min_commanded_m and moved <= self.max_still_m:
-            span = self._samples[-1][0] - self._samples[0][0]
             return (
-                f"{self.name} frozen: moved {moved * 1e3:.1f} mm in {span:.2f} s while the setpoint "
-                f"moved {commanded:.2f} m"
+                f"{self.name} frozen: moved {moved * 1e3:.1f} mm in {t_last - t_first:.2f} s "
+                f"({len(self._samples)} reports) while the setpoint moved {commanded:.2f} m"
             )
         return None
 
