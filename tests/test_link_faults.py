@@ -37,6 +37,15 @@ async def test_two_autopilots_with_one_system_id_on_the_port_refuse_the_start(po
         assert flight.vehicle.calls == []
 
 
+async def test_no_autopilot_on_the_link_is_a_refusal(policy: Policy) -> None:
+    port = free_udp_port()
+    flight = LinkFlight(policy, Px4Emulator(None, FAST, api_port=free_udp_port()), port)  # never started
+    flight.vehicle.connect_timeout_s = 1.0
+    s = await flight.run()
+    assert s.stop_reason == "preflight_failed" and s.exit_code == 2, s
+    assert flight.vehicle.calls == []
+
+
 async def test_the_vehicles_source_changing_in_flight_stops_and_only_the_bound_vehicle_is_commanded(
     policy: Policy,
 ) -> None:

@@ -236,12 +236,13 @@ class FlightDaemon(StopLadder):
             raise task.exception()  # type: ignore[misc]
 
     async def _connect(self, tg: asyncio.TaskGroup) -> None:
-        """Connect to the one vehicle on the link; more than one autopilot is a refusal."""
+        """Connect to the one vehicle on the link. No autopilot, or more than one, is a refusal
+        (nothing is armed yet)."""
         self.phase = "connect"
         try:
             await self.vehicle.connect()
         except VehicleError as exc:
-            if exc.kind is VehicleErrorKind.BINDING:
+            if exc.kind in (VehicleErrorKind.BINDING, VehicleErrorKind.CONNECT):
                 raise PreflightError(PreflightCheck("vehicle", False, str(exc), retry=False)) from exc
             raise
         bound = self.vehicle.state.binding
