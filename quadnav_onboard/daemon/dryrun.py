@@ -36,22 +36,8 @@ above it (else it sees no floor at all and preflight rightly refuses an all-inva
 camera's height is floored at ``floor + GEAR_HEIGHT_M``; in flight (higher) nothing changes."""
 
 
-def _flight_path(cfg: FlightConfig, world: Any) -> RoughPath:
-    """The rough path to fly: the config's waypoints if given, else the world's."""
-    wps = cfg.mission.waypoints_m
-    if wps is None:
-        return world.path
-    return RoughPath(wps, cfg.mission.speed_m_s)
-
-
-class ProcessDryRun:
-    """Context manager: ``with ProcessDryRun(cfg, world_path) as sim: FlightDaemon(..., **sim.parts())``.
-
-    ``emulator``: keyword arguments for :class:`sim_harness.px4.EmulatorConfig`; ``mocap``:
-    settings of the emulated Motive (``rate_hz``, ``noise_m``, ``latency_s``, ``dropout``, ...).
-    ``world_path`` None = the paper's Env 1. ``side`` is the running
-    :class:`~sim_harness.vehicle_side.VehicleSide` (its parts can be killed to inject faults).
-    """
+class _SimWiring:
+    """What both wirings share: the world, the config and the path flown."""
 
     def __init__(
         self,
@@ -70,11 +56,26 @@ class ProcessDryRun:
         self._emulator_kwargs = emulator or {}
         self._mocap_kwargs = mocap or {}
         self.seed = seed
-        self.side: Any = None
 
     @property
     def path(self) -> RoughPath:
-        return _flight_path(self.cfg, self.world)
+        """The rough path to fly: the config's waypoints if given, else the world's."""
+        wps = self.cfg.mission.waypoints_m
+        if wps is None:
+            return self.world.path
+        return RoughPath(wps, self.cfg.mission.speed_m_s)
+
+
+class ProcessDryRun(_SimWiring):
+    """Context manager: ``with ProcessDryRun(cfg, world_path) as sim: FlightDaemon(..., **sim.parts())``.
+
+    ``emulator``: keyword arguments for :class:`sim_harness.px4.EmulatorConfig`; ``mocap``:
+    settings of the emulated Motive (``rate_hz``, ``noise_m``, ``latency_s``, ``dropout``, ...).
+    ``world_path`` None = the paper's Env 1. ``side`` is the running
+    :class:`~sim_harness.vehicle_side.VehicleSide` (its parts can be killed to inject faults).
+    """
+
+    side: Any = None
 
     def __enter__(self) -> ProcessDryRun:
         from sim_harness.natnet import ROTATION_WORLD_FROM_MOTIVE
@@ -153,36 +154,14 @@ class _CameraPose:
         return dataclasses.replace(pose, pos_world_m=pos)
 
 
-class DryRun:
+class DryRun(_SimWiring):
     """Context manager: ``with DryRun(cfg, world_path) as sim: FlightDaemon(..., **sim.parts())``.
 
     ``emulator``: keyword arguments for :class:`sim_harness.px4.EmulatorConfig` (e.g. a faster
     heartbeat in tests). ``world_path`` None = the paper's Env 1.
     """
 
-    def __init__(
-        self,
-        cfg: FlightConfig,
-        world_path: str | Path | None = None,
-        *,
-        emulator: dict[str, Any] | None = None,
-        mocap: dict[str, Any] | None = None,
-        seed: int = 0,
-    ) -> None:
-        from sim_harness.world import load_world, paper_world_path
-
-        self.world_path = Path(world_path) if world_path is not None else paper_world_path(1)
-        self.world = load_world(self.world_path)
-        self.cfg = cfg
-        self._emulator_kwargs = emulator or {}
-        self._mocap_kwargs = mocap or {}
-        self.seed = seed
-        self.emulator: Any = None
-
-    @property
-    def path(self) -> RoughPath:
-        """The rough path to fly: the config's waypoints if given, else the world's."""
-        return _flight_path(self.cfg, self.world)
+    emulator: Any = None
 
     def __enter__(self) -> DryRun:
         from sim_harness.px4 import EmulatorConfig, Px4Emulator, free_udp_port
