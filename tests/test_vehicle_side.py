@@ -355,3 +355,22 @@ def test_first_dry_run_with_no_compiled_cache_reaches_the_goal(world: Path, tmp_
     assert summary["startup"]["ready_s"] > summary["startup"]["warmup_s"] > 0
     written = {p.parts[len(cache.parts)].split("_")[0] for p in cache.rglob("*.nbi")}
     assert {"quadnav", "sim"} <= written  # the daemon's and the sim's kernels were compiled here
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+async def test_the_vehicle_side_in_processes_flies_the_row_the_single_process_wiring_flies(
+    world: Path, model: Path
+) -> None:
+    """Same world, start and model: the same stop, steps, crash and (within timing) distance and
+    reward, whether the sim's parts run in their own processes or in the daemon's."""
+    from quadnav_onboard.daemon.dryrun import DryRun
+
+    split, _ = await _fly(world, model, None)
+    with DryRun(_config(), world, emulator={"heartbeat_hz": 10.0}) as sim:
+        daemon = FlightDaemon(sim.cfg, policy=Policy.from_path(model), **sim.parts())
+        single = await asyncio.wait_for(daemon.run(), 90)
+    outcome = (split.stop_reason, split.steps, split.crashed)
+    assert outcome == (single.stop_reason, single.steps, single.crashed)
+    assert abs(split.navigation_distance_m - single.navigation_distance_m) < 0.05
+    assert abs(split.total_reward - single.total_reward) < 0.05
