@@ -29,29 +29,17 @@ from quadnav_onboard.sources.base import DepthFrame
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
-WORLD = """name: short
-description: a 3 m free path for tests
-path:
-  waypoints: [[0, 0, 1.5], [3, 0, 1.5]]
-  speed_m_s: 1.0
-bounds: {floor_z: 0.0, ceiling_z: 5.0}
-obstacles: []
-"""
-FORWARD, LEFT_FORWARD = 4, 7
+LEFT_FORWARD = 7
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("w") / "short.yaml"
-    path.write_text(WORLD)
-    return path
+def world(tmp_path_factory: pytest.TempPathFactory, straight_world: Callable[[Path, float], Path]) -> Path:
+    return straight_world(tmp_path_factory.mktemp("w"), 3.0)
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("m") / "fwd.pt"
-    constant_action_checkpoint(str(path), FORWARD)
-    return path
+def model(forward_model: Path) -> Path:
+    return forward_model
 
 
 def config(**safety: Any) -> FlightConfig:

@@ -23,7 +23,6 @@ from quadnav_onboard.config import PrimitiveConfig, parse_config
 from quadnav_onboard.daemon.app import FlightDaemon
 from quadnav_onboard.daemon.config import FlightConfig, MissionConfig, SafetyConfig, default_sim_config
 from quadnav_onboard.daemon.dryrun import ProcessDryRun
-from quadnav_onboard.daemon.testing import constant_action_checkpoint
 from quadnav_onboard.frames import quat_from_yaw
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.sources.mocap import MocapError, MocapOdometrySource, MocapTransform, probe_natnet
@@ -33,29 +32,15 @@ from sim_harness.px4.ports import free_udp_port
 from sim_harness.truth import TruthBlock
 from sim_harness.vehicle_side import VehicleSide
 
-WORLD = """name: short
-description: a 6 m free path for tests
-path:
-  waypoints: [[0, 0, 1.5], [6, 0, 1.5]]
-  speed_m_s: 1.0
-bounds: {floor_z: 0.0, ceiling_z: 5.0}
-obstacles: []
-"""
-FORWARD = 4
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory: pytest.TempPathFactory, straight_world: Callable[[Path, float], Path]) -> Path:
+    return straight_world(tmp_path_factory.mktemp("w"), 6.0)
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("w") / "short.yaml"
-    path.write_text(WORLD)
-    return path
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("m") / "fwd.pt"
-    constant_action_checkpoint(str(path), FORWARD)
-    return path
+def model(forward_model: Path) -> Path:
+    return forward_model
 
 
 # --- the truth block -------------------------------------------------------------------------------
