@@ -30,11 +30,6 @@ __all__ = ["DryRun", "ProcessDryRun"]
 
 log = get_logger("quadnav.dryrun")
 
-GEAR_HEIGHT_M = 0.1
-"""The emulator parks the body origin on the floor; a real D435 sits at least landing-gear height
-above it (else it sees no floor at all and preflight rightly refuses an all-invalid frame). The sim
-camera's height is floored at ``floor + GEAR_HEIGHT_M``; in flight (higher) nothing changes."""
-
 
 class _SimWiring:
     """What both wirings share: the world, the config and the path flown."""
@@ -139,10 +134,13 @@ class ProcessDryRun(_SimWiring):
 
 
 class _CameraPose:
-    """The emulator's true pose with the camera no lower than landing-gear height."""
+    """The emulator's true pose with the camera no lower than landing-gear height
+    (:data:`sim_harness.sidecar.GEAR_HEIGHT_M`: a real D435 never sits on the floor)."""
 
     def __init__(self, pose_fn: Any, floor_z_m: float | None) -> None:
         self._pose_fn = pose_fn
+        from sim_harness.sidecar import GEAR_HEIGHT_M
+
         self._min_z_m = (floor_z_m or 0.0) + GEAR_HEIGHT_M
 
     def __call__(self) -> Any:
