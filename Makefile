@@ -26,7 +26,7 @@ install-dev: $(VENV)/bin/python
 	$(PIP) install -q $(TORCH_PIN)
 	$(PIP) install -q -e ".[dev,mocap]"
 
-## Quick start 1: install, then fly Env 1 in the sim (emulated PX4 over real MAVLink) with the bundled model.
+## Quick start 1: install, then fly Env 1 in the sim (its vehicle, camera and mocap as processes) with the bundled model.
 dry-run: install
 	$(VENV)/bin/quadnav-onboard --dry-run
 
