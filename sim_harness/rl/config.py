@@ -151,6 +151,16 @@ class TrainConfig:
     keep_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
     """Episodes between model snapshots kept as ``checkpoints/ep{N}.pt`` (0 = none), so a
     checkpoint can be chosen afterwards by an evaluation on the training worlds. Range: [0, 10^7]."""
+    eval_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
+    """Episodes between greedy evaluations of the current network on the training worlds, and one
+    at the end (0 = none): scores in ``evals.json``/``evals.csv`` and TensorBoard, and what a
+    sweep's early stopping reads. Uses its own seeded envs: training is the same with or without.
+    Range: [0, 10^7]."""
+    eval_trials: Annotated[int, pydantic.Field(ge=1, le=1000)] = 2
+    """Episodes per training world in each of those evaluations. Range: [1, 1000]."""
+    tensorboard: bool = True
+    """Write TensorBoard event files to ``RUN_DIR/tb`` (needs the ``tensorboard`` extra; without
+    it the run goes on and says so once)."""
     torch_threads: Annotated[int, pydantic.Field(ge=1, le=1024)] = 1
     """torch.set_num_threads (1: on a loaded 2-core machine two OpenMP threads ran ~10x slower).
     Range: [1, 1024]."""

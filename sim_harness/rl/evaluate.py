@@ -29,6 +29,7 @@ __all__ = [
     "format_table",
     "override_shield",
     "policy_greedy_fn",
+    "scores",
     "summarize",
 ]
 
@@ -149,6 +150,19 @@ def summarize(rows: Sequence[EvalRow]) -> dict[str, float | int]:
         "success_rate": goals / n if n else 0.0,
         "collision_free_rate": safe / n if n else 0.0,
         "success_among_safe": safe_goals / safe if safe else 0.0,
+    }
+
+
+def scores(rows: Sequence[EvalRow]) -> dict[str, float]:
+    """Flat scores of an evaluation (what TensorBoard and a sweep's scheduler read): goal and
+    collision-free rates, mean navigation distance (m) and mean total reward."""
+    s = summarize(rows)
+    n = max(len(rows), 1)
+    return {
+        "goal_rate": round(float(s["success_rate"]), 6),
+        "collision_free_rate": round(float(s["collision_free_rate"]), 6),
+        "distance_m": round(sum(r.distance_m for r in rows) / n, 3),
+        "reward": round(sum(r.total_reward for r in rows) / n, 4),
     }
 
 

@@ -1,7 +1,8 @@
 """The run directory: config, per-episode metrics (CSV + JSON), the reward-curve PNG.
 
 Files only; no learning here. A run directory is ``<out_dir>/<name>__seed<k>__<YYYYmmdd-HHMMSS>/``
-holding ``config.json``, ``metrics.csv``, ``metrics.json``, ``reward_curve.png``,
+holding ``config.json``, ``metrics.csv``, ``metrics.json``, ``reward_curve.png``, ``evals.csv`` and
+``evals.json`` (with ``eval_every``), ``tb/`` (TensorBoard event files),
 ``checkpoints/`` (``latest.pt``, ``final.pt`` loadable by ``load_checkpoint``) and ``state.pt`` +
 ``state.json`` (what ``--resume`` needs).
 """
@@ -23,7 +24,9 @@ __all__ = [
     "git_commit",
     "make_run_dir",
     "plot_reward_curve",
+    "read_evals",
     "read_metrics",
+    "write_evals",
     "write_metrics",
 ]
 
@@ -86,6 +89,28 @@ def write_metrics(run_dir: Path, rows: Sequence[dict[str, Any]]) -> None:
     tmp = run_dir / "metrics.json.tmp"
     tmp.write_text(json.dumps(list(rows)), encoding="utf-8")
     tmp.replace(run_dir / "metrics.json")
+
+
+def write_evals(run_dir: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Write evals.csv and evals.json (one row per evaluation during training), atomically."""
+    fields = list(rows[0]) if rows else ["episode"]
+    tmp = run_dir / "evals.csv.tmp"
+    with tmp.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    tmp.replace(run_dir / "evals.csv")
+    tmp = run_dir / "evals.json.tmp"
+    tmp.write_text(json.dumps(list(rows)), encoding="utf-8")
+    tmp.replace(run_dir / "evals.json")
+
+
+def read_evals(run_dir: Path) -> list[dict[str, Any]]:
+    """The rows of evals.json (empty if there is none)."""
+    path = run_dir / "evals.json"
+    if not path.is_file():
+        return []
+    return list(json.loads(path.read_text(encoding="utf-8")))
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, Any]]:

@@ -6,6 +6,11 @@ update, Huber loss + Adam, a target network, uniform replay. Episodes are the un
 ``config.episodes`` episodes have finished. ``train(resume=RUN_DIR)`` continues a killed run from its
 last checkpoint (networks, optimiser, counters, RNG states, metrics); the replay buffer is not saved,
 so it refills to ``learning_starts`` before updates resume.
+
+Beyond the metrics files, a run writes TensorBoard event files (``tensorboard``; sim_harness.rl.tblog)
+and, every ``eval_every`` episodes, a greedy evaluation of the current network on the training
+worlds (``evals.json``/``evals.csv``). ``hooks`` (:class:`TrainHook`) see every finished episode and
+every evaluation: a sweep's trial reports to its scheduler from there.
 """
 
 from __future__ import annotations
@@ -14,8 +19,9 @@ import dataclasses
 import json
 import shutil
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numba
 import numpy as np
@@ -31,12 +37,24 @@ from sim_harness.env import REFERENCE_SCALE_M, EnvConfig, VecQuadNavEnv, at_prim
 from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
+from sim_harness.rl.evaluate import evaluate, scores
 from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
-from sim_harness.rl.runlog import git_commit, make_run_dir, plot_reward_curve, read_metrics, write_metrics
+from sim_harness.rl.runlog import (
+    git_commit,
+    make_run_dir,
+    plot_reward_curve,
+    read_evals,
+    read_metrics,
+    write_evals,
+    write_metrics,
+)
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
-from sim_harness.world import load_world, paper_world_path
+from sim_harness.rl.tblog import TensorBoardLog, open_tensorboard
+from sim_harness.world import World, load_world, paper_world_path
 
 __all__ = [
+    "EVAL_SEED",
+    "TrainHook",
     "TrainResult",
     "TrainingInterrupted",
     "env_config_for",
@@ -64,6 +82,21 @@ class TrainResult:
     @property
     def updates_per_s(self) -> float:
         return self.updates / max(self.wall_s, 1e-9)
+
+
+class TrainHook(Protocol):
+    """Told of a run's progress by :func:`train` (in its thread, between steps)."""
+
+    def on_episode(self, row: dict[str, Any]) -> None:
+        """A finished episode: one row of metrics.csv."""
+
+    def on_evaluation(self, episode: int, scores: dict[str, float], model_path: Path, run_dir: Path) -> None:
+        """An evaluation (``eval_every``) of the model at ``model_path`` after ``episode`` episodes;
+        the run is checkpointed at that point, so ``train(resume=run_dir)`` continues from it."""
+
+
+EVAL_SEED = 1000
+"""Seed of the evaluations during training (the same starts every time, so scores compare)."""
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -144,12 +177,30 @@ def learning_rate_at(episode: int, cfg: TrainConfig) -> float:
     return linear_tail(cfg.learning_rate, cfg.lr_end, episode, cfg.episodes, cfg.schedule_fraction)
 
 
+def _evaluator(
+    agent: DQNAgent, worlds: Sequence[World], env_cfg: EnvConfig, cfg: TrainConfig
+) -> dict[str, float]:
+    """Greedy scores of the current network on ``worlds`` (its own envs and seed: training's RNGs
+    are untouched); the reward with the default floor, as evaluation always reports it."""
+    eval_cfg = dataclasses.replace(env_cfg, random_start_prob=0.0, reward=RewardParams())
+    shield = cfg.shield
+    rows = evaluate(
+        lambda d, r, allowed: agent.greedy(d, r, allowed if shield else None),
+        worlds,
+        cfg.eval_trials,
+        seed=EVAL_SEED,
+        env_config=eval_cfg,
+    )
+    return scores(rows)
+
+
 def train(
     config: TrainConfig | None = None,
     *,
     resume: str | Path | None = None,
     progress: bool = True,
     kill_after_episodes: int | None = None,
+    hooks: Sequence[TrainHook] = (),
 ) -> TrainResult:
     """Train (or resume) one run; returns its directory, final model and throughput figures.
 
@@ -169,6 +220,7 @@ def train(
     env_cfg = env_config_for(cfg)
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
     worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
+    n_listed = len(worlds)  # evaluations fly these, not the procedural ones
     worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed, cfg.procedural_families)
     if cfg.primitive_scale_m != REFERENCE_SCALE_M:
         env_cfg, worlds = at_primitive_scale(env_cfg, worlds, cfg.primitive_scale_m)
@@ -211,6 +263,8 @@ def train(
         act_rng.bit_generator.state = state["rng"]["act"]
         env_steps, wall_before = int(state["env_steps"]), float(state["wall_s"])
         rows = read_metrics(run_dir)[: int(state["episodes"])]
+    evals = [e for e in read_evals(run_dir) if e["episode"] <= len(rows)] if resume is not None else []
+    tb: TensorBoardLog | None = open_tensorboard(run_dir) if cfg.tensorboard else None
     finished = len(rows)
     started = finished + cfg.n_envs
     env_episode = finished + np.arange(cfg.n_envs)
@@ -242,6 +296,17 @@ def train(
             model = _save_model(run_dir / "checkpoints" / "final.pt", agent, cfg, env_cfg, extra)
             plot_reward_curve(rows, run_dir / "reward_curve.png", f"{run_dir.name}")
         return model
+
+    def evaluation(model: Path) -> None:
+        agent.q.eval()
+        score = _evaluator(agent, worlds[:n_listed], env_cfg, cfg)
+        agent.q.train()
+        evals.append({"episode": finished, "env_steps": env_steps, **score})
+        write_evals(run_dir, evals)
+        if tb is not None:
+            tb.evaluation(finished, score)
+        for hook in hooks:
+            hook.on_evaluation(finished, score, model, run_dir)
 
     try:
         while finished < cfg.episodes:
@@ -299,23 +364,38 @@ def train(
                 started += 1
                 bar.update(1)
                 bar.set_postfix(reward=f"{rows[-1]['reward']:.2f}", eps=f"{eps[i]:.2f}", refresh=False)
+                if tb is not None:
+                    tb.episode(rows[-1])
+                for hook in hooks:
+                    hook.on_episode(rows[-1])
                 keep_due = cfg.keep_every and finished % cfg.keep_every == 0
-                due = finished % cfg.checkpoint_every == 0 or keep_due
+                eval_due = cfg.eval_every and finished % cfg.eval_every == 0
+                due = finished % cfg.checkpoint_every == 0 or keep_due or eval_due
                 if due and finished < cfg.episodes:
-                    checkpoint()
+                    model = checkpoint()
+                    if eval_due:
+                        evaluation(model)
                 if kill_after_episodes is not None and finished >= kill_after_episodes:
                     bar.close()
+                    if tb is not None:
+                        tb.close()
                     return TrainResult(
                         run_dir, run_dir / "checkpoints" / "latest.pt", finished, env_steps, 0, 0.0
                     )
     except KeyboardInterrupt:  # Ctrl-C: keep what was learned, say how to go on
         bar.close()
         model = checkpoint()
+        if tb is not None:
+            tb.close()
         result = TrainResult(run_dir, model, finished, env_steps, agent.n_updates, time.monotonic() - t0)
         raise TrainingInterrupted(result) from None
     bar.close()
-    checkpoint(final=True)
-    wall = time.monotonic() - t0
+    final = checkpoint(final=True)
+    wall = time.monotonic() - t0  # training only: the closing evaluation is not in the throughput
+    if cfg.eval_every:
+        evaluation(final)
+    if tb is not None:
+        tb.close()
     return TrainResult(
         run_dir, run_dir / "checkpoints" / "final.pt", finished, env_steps, agent.n_updates, wall
     )
