@@ -11,7 +11,7 @@ from mcap.writer import Writer
 
 from quadnav_onboard.record import FlightRecorder, NullRecorder, RecorderError, RecordError, read_record
 from quadnav_onboard.record.recorder import RecordExistsError, record_name
-from quadnav_onboard.record.schemas import SCHEMAS, TOPICS
+from quadnav_onboard.record.schemas import JSON_SCHEMAS, PROTOBUF_SCHEMAS, TOPICS
 
 
 def _fill(rec: FlightRecorder, n: int = 10, t0: float = 50.0) -> None:
@@ -78,7 +78,8 @@ def test_everything_recorded_comes_back(tmp_path, writer):
 
 
 def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path, writer):
-    """The stock mcap reader opens the record, CRCs hold, and topics carry Foxglove schema names."""
+    """The stock mcap reader opens the record, CRCs hold, and topics carry Foxglove's well-known
+    schemas in protobuf (quadnav's own in JSON)."""
     path = tmp_path / "f.mcap"
     with FlightRecorder(path, metadata={}, writer=writer) as rec:
         _fill(rec, n=3)
@@ -86,10 +87,17 @@ def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path, writer):
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
         topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        encodings = {
+            c.topic: (c.message_encoding, summary.schemas[c.schema_id].encoding)
+            for c in summary.channels.values()
+        }
         n = sum(1 for _ in reader.iter_messages())
     assert topics == TOPICS
     assert topics["/camera/depth"] == "foxglove.RawImage" and topics["/events"] == "foxglove.Log"
-    assert set(SCHEMAS) >= set(topics.values())
+    for topic, name in topics.items():
+        want = ("protobuf", "protobuf") if name in PROTOBUF_SCHEMAS else ("json", "jsonschema")
+        assert name in PROTOBUF_SCHEMAS or name in JSON_SCHEMAS
+        assert encodings[topic] == want, topic
     assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
     assert n == summary.statistics.message_count > 0
 

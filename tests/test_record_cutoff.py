@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import signal
 import subprocess
@@ -11,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from quadnav_onboard.record import FlightRecorder, RecordError, read_record
 from quadnav_onboard.review.cli import main as review_main
@@ -106,9 +108,10 @@ def test_truncated_anywhere_reads_a_prefix_or_fails_cleanly(tmp_path, complete_r
 def test_flipped_byte_in_a_chunk_stops_at_the_damage(tmp_path, complete_record):
     """A corrupted chunk fails its CRC: the record is read up to it and says where it is damaged."""
     data, n = complete_record
+    chunks = make_reader(io.BytesIO(data)).get_summary().chunk_indexes
+    middle = chunks[len(chunks) // 2]
     bad = bytearray(data)
-    mid = len(bad) // 2
-    bad[mid] ^= 0xFF
+    bad[middle.chunk_start_offset + middle.chunk_length // 2] ^= 0xFF
     p = tmp_path / "bad.mcap"
     p.write_bytes(bytes(bad))
     rec = read_record(p)

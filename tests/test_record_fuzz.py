@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import base64
 import json
 
 import numpy as np
@@ -11,7 +10,8 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from quadnav_onboard.record import FlightRecorder, RecordError, read_record
-from quadnav_onboard.record.schemas import SCHEMAS, TOPICS
+from quadnav_onboard.record.decode import ProtobufSchema
+from quadnav_onboard.record.schemas import JSON_SCHEMAS, PROTOBUF_SCHEMAS, TOPICS
 
 _DATA: dict[str, bytes] = {}
 
@@ -72,18 +72,25 @@ def test_damaged_records_never_crash_the_reader(tmp_path_factory, tmp_path, flip
 
 
 def test_every_message_fits_its_foxglove_or_quadnav_schema(tmp_path_factory, tmp_path):
-    """Each message's fields are declared by its topic's schema; raw images are consistent in size."""
+    """Each protobuf message decodes by its own schema with no undeclared field; each JSON message
+    has its schema's required keys and no others; raw images are consistent in size."""
     p = tmp_path / "r.mcap"
     p.write_bytes(_record_bytes(tmp_path_factory))
-
+    seen = set()
     with open(p, "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
-            assert schema.name == TOPICS[channel.topic] and schema.encoding == "jsonschema"
-            msg = json.loads(message.data)
-            declared = set(SCHEMAS[schema.name]["properties"])
-            assert set(msg) <= declared, (channel.topic, set(msg) - declared)
-            assert {"sec", "nsec"} == set(msg["timestamp"])
+            assert schema.name == TOPICS[channel.topic]
+            seen.add(channel.topic)
+            if schema.name in PROTOBUF_SCHEMAS:
+                assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
+                msg = ProtobufSchema(schema.data).decode(schema.name, message.data, strict=True)
+            else:
+                assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+                msg = json.loads(message.data)
+                declared = JSON_SCHEMAS[schema.name]
+                assert set(declared["required"]) <= set(msg) <= set(declared["properties"]), channel.topic
             if schema.name == "foxglove.RawImage":
                 item = {"16UC1": 2, "32FC1": 4}[msg["encoding"]]
                 assert msg["step"] == msg["width"] * item
-                assert len(base64.b64decode(msg["data"])) == msg["height"] * msg["step"]
+                assert len(msg["data"]) == msg["height"] * msg["step"]
+    assert {"/camera/depth", "/planner/input", "/odometry", "/tf", "/planner/step", "/events"} <= seen

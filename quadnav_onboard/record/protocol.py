@@ -31,6 +31,10 @@ class Recorder(Protocol):
         self, t_mono_s: float, pos_world_m: ArrayLike, vel_world_m_s: ArrayLike, yaw_rad: float
     ) -> None: ...
     def step(self, t_mono_s: float, **decision: Any) -> None: ...
+    def camera(self, t_mono_s: float, **model: Any) -> None: ...
+    def geofence(self, t_mono_s: float, min_m: ArrayLike, max_m: ArrayLike) -> None: ...
+    def world(self, t_mono_s: float, world: Mapping[str, Any]) -> None: ...
+    def px4_time(self, t_mono_s: float, px4_boot_us: int, px4_unix_us: int = 0) -> None: ...
     def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None: ...
     def event(self, t_mono_s: float, kind: str, message: str, **fields: Any) -> None: ...
     def rough_path(self, t_mono_s: float, waypoints_m: ArrayLike) -> None: ...
@@ -75,6 +79,18 @@ class NullRecorder:
         return None
 
     def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None:
+        return None
+
+    def camera(self, t_mono_s: float, **model: Any) -> None:
+        return None
+
+    def geofence(self, t_mono_s: float, min_m: Any, max_m: Any) -> None:
+        return None
+
+    def world(self, t_mono_s: float, world: Mapping[str, Any]) -> None:
+        return None
+
+    def px4_time(self, t_mono_s: float, px4_boot_us: int, px4_unix_us: int = 0) -> None:
         return None
 
     def event(self, t_mono_s: float, kind: str, message: str, **fields: Any) -> None:

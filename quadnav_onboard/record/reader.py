@@ -5,12 +5,18 @@ that ends early (SIGKILL, power loss: no summary, no footer, a half-written last
 to the last complete, CRC-valid chunk and marked ``complete=False`` with the reason. Anything that
 is not a quadnav flight record raises :class:`RecordError` with a one-line message naming the
 file.
+
+Both formats are read: version 2 (Foxglove's well-known schemas, protobuf, wall-clock log times;
+decoded by their own schemas, :mod:`decode`) and version 1 (JSON messages, monotonic log times).
+Either way the record's times come back as monotonic seconds of the recording process.
 """
 
 from __future__ import annotations
 
+import base64
 import io
 import json
+import math
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -25,10 +31,12 @@ from mcap.stream_reader import StreamReader
 from numpy.typing import NDArray
 
 from quadnav_onboard.record import schemas as S
+from quadnav_onboard.record.decode import DecodeError, decoder_for
 
 __all__ = ["FlightRecord", "RecordError", "read_record"]
 
 _MAGIC = b"\x89MCAP0\r\n"
+_READABLE_VERSIONS = ("1", str(S.FORMAT_VERSION))
 _MAX_RECORD_BYTES = 1 << 30
 
 
@@ -77,6 +85,12 @@ class FlightRecord:
     """The rough path (world, m, (K, 3)) when the recorder was given it."""
     stop: dict[str, Any] | None = None
     """The quadnav.Stop message (stop_reason, summary, dropped) with ``t_mono_s``; None if cut off."""
+    px4_time: list[dict[str, Any]] = field(default_factory=list)
+    """quadnav.Px4Time messages (PX4's clock: ``unix_minus_px4_boot_us`` lines up the ULog)."""
+    format_version: int = 0
+    unix_minus_mono_ns: int = 0
+    """Version 2: a log time (wall clock, ns) minus the recording process's monotonic time (ns)."""
+    """The record's format version (1: JSON, monotonic log times; 2: Foxglove protobuf, UTC)."""
 
     @property
     def name(self) -> str:
@@ -153,10 +167,31 @@ def _records(path: Path, problems: list[str]) -> Iterator[McapRecord]:
 
 
 def _ts(msg: dict[str, Any], log_time_ns: int) -> float:
+    """Version 1: the message's monotonic time stamp, else its log time (also monotonic)."""
     stamp = msg.get("timestamp")
     if isinstance(stamp, dict) and "sec" in stamp:
         return int(stamp["sec"]) + int(stamp.get("nsec", 0)) * 1e-9
-    return S.from_ns(log_time_ns)
+    return log_time_ns * 1e-9
+
+
+def _decode_image_v1(msg: dict[str, Any]) -> np.ndarray:
+    dtype = {"16UC1": "<u2", "32FC1": "<f4"}.get(msg["encoding"])
+    if dtype is None:
+        raise ValueError(f"unsupported image encoding {msg['encoding']!r}")
+    raw = base64.b64decode(msg["data"])
+    return np.frombuffer(raw, dtype=dtype).reshape(int(msg["height"]), int(msg["width"])).astype(dtype[1:])
+
+
+def _decode_image(msg: dict[str, Any]) -> np.ndarray:
+    """A foxglove.RawImage (16UC1 or 32FC1, little-endian rows of ``step`` bytes) as (H, W)."""
+    dtype = {"16UC1": np.dtype("<u2"), "32FC1": np.dtype("<f4")}.get(msg["encoding"])
+    if dtype is None:
+        raise ValueError(f"unsupported image encoding {msg['encoding']!r}")
+    h, w, step = int(msg["height"]), int(msg["width"]), int(msg["step"])
+    if step < w * dtype.itemsize or len(msg["data"]) < h * step:
+        raise ValueError(f"image data of {len(msg['data'])} bytes is short of {h} rows of {step}")
+    rows = np.frombuffer(msg["data"], dtype=np.uint8, count=h * step).reshape(h, step)
+    return rows[:, : w * dtype.itemsize].copy().view(dtype).astype(dtype.newbyteorder("="))
 
 
 def read_record(path: str | Path, *, load_depth: bool = True) -> FlightRecord:
@@ -169,15 +204,16 @@ def read_record(path: str | Path, *, load_depth: bool = True) -> FlightRecord:
     problems: list[str] = []
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
+    decoders: dict[int, Any] = {}
     rec = FlightRecord(path=path, metadata={}, complete=False)
-    odom: list[tuple[float, list[float], list[float]]] = []
-    sps: list[tuple[float, list[float], float]] = []
+    acc = _Accumulator()
     try:
         for r in _records(path, problems):
             if isinstance(r, Schema):
                 schemas[r.id] = r
             elif isinstance(r, Channel):
                 channels[r.id] = r
+                decoders[r.id] = decoder_for(r.message_encoding, schemas.get(r.schema_id))
             elif isinstance(r, Metadata):
                 rec.metadata[r.name] = dict(r.metadata)
             elif isinstance(r, Footer):
@@ -188,60 +224,138 @@ def read_record(path: str | Path, *, load_depth: bool = True) -> FlightRecord:
                     problems.append(f"message on unknown channel {r.channel_id}")
                     break
                 rec.message_counts[ch.topic] = rec.message_counts.get(ch.topic, 0) + 1
-                if ch.message_encoding != "json":
+                decode = decoders[r.channel_id]
+                if decode is None or (ch.topic == "/camera/depth" and not load_depth):
                     continue
-                _dispatch(rec, ch.topic, json.loads(r.data), r.log_time, odom, sps, load_depth)
+                if rec.format_version == 0:
+                    rec.format_version = _version(path, rec)
+                msg = decode(r.data)
+                if rec.format_version == 1:
+                    _dispatch_v1(rec, ch.topic, msg, r.log_time, acc)
+                else:
+                    _dispatch(rec, ch.topic, msg, r.log_time, acc)
     except OSError as exc:
         raise RecordError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         if isinstance(exc, RecordError):
             raise
-        raise RecordError(f"{path}: malformed message in record: {type(exc).__name__}: {exc}") from None
-    if rec.metadata.get("recorder", {}).get("format") != S.FORMAT:
+        what = "undecodable" if isinstance(exc, DecodeError) else "malformed"
+        raise RecordError(f"{path}: {what} message in record: {type(exc).__name__}: {exc}") from None
+    if rec.format_version == 0:
         if not rec.metadata and not channels:
             raise RecordError(f"{path}: MCAP file holds no readable data ({'; '.join(problems) or 'empty'})")
-        raise RecordError(f"{path}: an MCAP file, but not a quadnav flight record (no 'recorder' metadata)")
-    version = rec.metadata["recorder"].get("format_version", "?")
-    if version != str(S.FORMAT_VERSION):
-        raise RecordError(
-            f"{path}: flight record format version {version}, this tool reads {S.FORMAT_VERSION}"
-        )
-    rec.problem = "; ".join(problems) or None
-    if rec.complete:
-        rec.problem = None
-    rec.steps.sort(key=lambda s: (s["step"], s["t_mono_s"]))
-    if odom:
-        rec.odom_t_s = np.array([o[0] for o in odom])
-        rec.odom_pos_world_m = np.array([o[1] for o in odom]).reshape(-1, 3)
-        rec.odom_quat_world_body = np.array([o[2] for o in odom]).reshape(-1, 4)
-    if sps:
-        rec.setpoint_t_s = np.array([s[0] for s in sps])
-        rec.setpoint_pos_world_m = np.array([s[1] for s in sps]).reshape(-1, 3)
-        rec.setpoint_yaw_rad = np.array([s[2] for s in sps])
+        rec.format_version = _version(path, rec)
+    rec.problem = None if rec.complete else ("; ".join(problems) or None)
+    acc.finish(rec)
+    world = rec.metadata.get("world", {}).get("yaml")
+    if world and "world_yaml" not in rec.info:
+        rec.metadata.setdefault("quadnav", {})["world_yaml"] = world
     return rec
 
 
+def _version(path: Path, rec: FlightRecord) -> int:
+    """The format version from the ``recorder`` metadata; RecordError if it is not ours."""
+    meta = rec.metadata.get("recorder", {})
+    if meta.get("format") != S.FORMAT:
+        raise RecordError(f"{path}: an MCAP file, but not a quadnav flight record (no 'recorder' metadata)")
+    version = meta.get("format_version", "?")
+    if version not in _READABLE_VERSIONS:
+        raise RecordError(
+            f"{path}: flight record format version {version}, this tool reads {', '.join(_READABLE_VERSIONS)}"
+        )
+    if version != "1":
+        try:
+            rec.unix_minus_mono_ns = int(meta["unix_minus_mono_ns"])
+        except (KeyError, ValueError):
+            raise RecordError(f"{path}: recorder metadata without a valid 'unix_minus_mono_ns'") from None
+    return int(version)
+
+
+@dataclass
+class _Accumulator:
+    """Rows gathered while reading, turned into the record's arrays at the end."""
+
+    odom: list[tuple[float, list[float], list[float]]] = field(default_factory=list)
+    sps: list[tuple[float, list[float], float]] = field(default_factory=list)
+    inputs: list[tuple[float, int, NDArray[np.float32]]] = field(default_factory=list)
+
+    def finish(self, rec: FlightRecord) -> None:
+        rec.steps.sort(key=lambda s: (s["step"], s["t_mono_s"]))
+        if self.odom:
+            rec.odom_t_s = np.array([o[0] for o in self.odom])
+            rec.odom_pos_world_m = np.array([o[1] for o in self.odom]).reshape(-1, 3)
+            rec.odom_quat_world_body = np.array([o[2] for o in self.odom]).reshape(-1, 4)
+        if self.sps:
+            rec.setpoint_t_s = np.array([s[0] for s in self.sps])
+            rec.setpoint_pos_world_m = np.array([s[1] for s in self.sps]).reshape(-1, 3)
+            rec.setpoint_yaw_rad = np.array([s[2] for s in self.sps])
+        if rec.format_version == 1:
+            rec.network_inputs = self.inputs
+            return
+        # version 2: an input's decision is the step recorded at the same time (-1: none recorded)
+        step_at = {round(s["t_mono_s"] * 1e9): int(s["step"]) for s in rec.steps}
+        rec.network_inputs = [(t, step_at.get(round(t * 1e9), -1), img) for t, _, img in self.inputs]
+
+
+def _quat(q: dict[str, Any] | None) -> list[float]:
+    q = q or {}
+    return [_num(q.get("w")), _num(q.get("x")), _num(q.get("y")), _num(q.get("z"))]
+
+
 def _dispatch(
-    rec: FlightRecord,
-    topic: str,
-    msg: dict[str, Any],
-    log_time_ns: int,
-    odom: list[tuple[float, list[float], list[float]]],
-    sps: list[tuple[float, list[float], float]],
-    load_depth: bool,
+    rec: FlightRecord, topic: str, msg: dict[str, Any], log_time_ns: int, acc: _Accumulator
 ) -> None:
+    """One version-2 message (decoded by its schema) into ``rec``."""
+    t = (log_time_ns - rec.unix_minus_mono_ns) / 1e9
+    if topic == "/planner/step":
+        rec.steps.append(msg)
+    elif topic == "/odometry":
+        pose = msg["pose"] or {}
+        acc.odom.append((t, _vec(pose.get("position") or {}), _quat(pose.get("orientation"))))
+    elif topic == "/setpoint":
+        pose = msg["pose"] or {}
+        w, _, _, z = _quat(pose.get("orientation"))
+        acc.sps.append((t, _vec(pose.get("position") or {}), 2.0 * math.atan2(z, w)))
+    elif topic == "/planner/input":
+        acc.inputs.append((t, -1, _decode_image(msg).astype(np.float32)))
+    elif topic == "/camera/depth":
+        rec.depth.append((t, _decode_image(msg)))
+    elif topic == "/vehicle":
+        rec.vehicle.append(msg)
+    elif topic == "/vehicle/px4_time":
+        rec.px4_time.append(msg)
+    elif topic == "/events":
+        text, sep, tail = str(msg["message"]).partition(S.EVENT_FIELDS_SEPARATOR)
+        fields: Any = {}
+        if sep:
+            try:
+                fields = json.loads(tail)
+            except ValueError:
+                text = str(msg["message"])
+        level, kind = int(msg["level"]), str(msg["name"])
+        rec.events.append({"t_mono_s": t, "level": level, "kind": kind, "message": text, "fields": fields})
+    elif topic == "/planner/path":
+        rec.path_waypoints_m = np.array([_vec(p["position"] or {}) for p in msg["poses"]], dtype=np.float64)
+    elif topic == "/flight/stop":
+        rec.stop = msg
+
+
+def _dispatch_v1(
+    rec: FlightRecord, topic: str, msg: dict[str, Any], log_time_ns: int, acc: _Accumulator
+) -> None:
+    """One version-1 message (JSON, monotonic times) into ``rec``."""
     t = _ts(msg, log_time_ns)
     if topic == "/planner/step":
         rec.steps.append({**msg, "t_mono_s": t})
     elif topic == "/odometry":
         q = msg["pose"]["orientation"]
-        odom.append((t, _vec(msg["pose"]["position"]), [_num(q.get(k)) for k in ("w", "x", "y", "z")]))
+        acc.odom.append((t, _vec(msg["pose"]["position"]), [_num(q.get(k)) for k in ("w", "x", "y", "z")]))
     elif topic == "/setpoint":
-        sps.append((t, _vec(msg["pos_world_m"]), _num(msg.get("yaw_rad"))))
+        acc.sps.append((t, _vec(msg["pos_world_m"]), _num(msg.get("yaw_rad"))))
     elif topic == "/planner/input":
-        rec.network_inputs.append((t, int(msg.get("decision_step", -1)), S.decode_image(msg)))
-    elif topic == "/camera/depth" and load_depth:
-        rec.depth.append((t, S.decode_image(msg)))
+        acc.inputs.append((t, int(msg.get("decision_step", -1)), _decode_image_v1(msg)))
+    elif topic == "/camera/depth":
+        rec.depth.append((t, _decode_image_v1(msg)))
     elif topic == "/vehicle":
         rec.vehicle.append({**msg, "t_mono_s": t})
     elif topic == "/events":

@@ -3,16 +3,19 @@
 The control loop calls the recorder's methods (all take ``t_mono_s``, the ``time.monotonic()``
 time of the datum, first). Each call copies its arguments into one of two bounded queues and
 returns; a writer thread hands what is queued to the writer (:class:`~.sink.McapSink`), which
-encodes (JSON, see :mod:`schemas`), compresses (zstd chunks with CRCs) and writes. With
+encodes (Foxglove's well-known schemas through its SDK, protobuf; JSON for quadnav's own, see
+:mod:`schemas` and :mod:`scene`), compresses (zstd chunks with CRCs) and writes. With
 ``writer="process"`` (what the flight daemon uses) the encoding and writing run in a child process
 (:mod:`writer_process`), so they never hold the flight process's GIL; the writer thread then only
 pickles batches into a pipe. With ``writer="thread"`` (evaluation records, tests) they run in the
-writer thread itself. Under pressure the recorder sheds load in this order:
+writer thread itself. Log times are wall-clock (UTC): ``t_mono_s`` plus the offset taken when the
+recorder was made (:mod:`schemas`). Under pressure the recorder sheds load in this order:
 
 1. raw depth is decimated at the source (``depth_decimation``: 1 frame in N is kept);
 2. kept depth frames wait in a small queue of their own; when it is full, or the control queue
    is more than half full, new depth frames are dropped and counted (``drop_counts['depth']``);
-3. control data (decisions, network inputs, odometry, setpoints, vehicle state, events) is never
+3. control data (decisions, network inputs, odometry, setpoints, vehicle state, events, the
+   scene: camera, geofence, world, PX4's clock) is never
    dropped while its queue has room; only a writer stalled long enough to fill ``queue_size``
    entries drops control data, counted apart (``drop_counts['control']``).
 
@@ -152,6 +155,7 @@ class FlightRecorder:
         self._depth_seen = 0
         self._drops: dict[str, int] = {"depth": 0, "control": 0, "failed": 0, "invalid": 0}
         self._local_invalid = 0  # invalid items caught in this process (the rest: by a writer process)
+        self._prims_sent: Any = None  # the primitive set the writer was last given
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             file = open(self.path, "xb")  # noqa: SIM115 - handed to the writer, which closes it
@@ -309,8 +313,24 @@ class FlightRecorder:
         latency_ms: float,
         shield_allowed: ArrayLike | None = None,
         shield_clearance_m: ArrayLike | None = None,
+        primitive: Any = None,
     ) -> None:
-        """One planner decision (see :func:`schemas.encode_step` for units and frames)."""
+        """One planner decision (see :data:`schemas.JSON_SCHEMAS` ``quadnav.Step`` for units and
+        frames). ``primitive``: the commanded primitive (an
+        :class:`~quadnav_onboard.daemon.mission.ActivePrimitive`: its primitive set, commanded
+        start, start velocity and heading), drawn with every other primitive of its set and the
+        filter's verdict on ``/planner/primitives``; None draws nothing."""
+        drawn = None
+        if primitive is not None:
+            prims = primitive.primitives
+            if prims is not self._prims_sent:
+                self._prims_sent = prims
+                self._put("primitive_set", t_mono_s, prims)
+            drawn = (
+                np.array(primitive.start_world_m, dtype=np.float64),
+                np.array(primitive.start_vel_world_m_s, dtype=np.float64),
+                float(primitive.yaw_rad),
+            )
         decision = {
             "step": int(step),
             "action": int(action),
@@ -325,8 +345,41 @@ class FlightRecorder:
             "latency_ms": float(latency_ms),
             "shield_allowed": None if shield_allowed is None else np.array(shield_allowed, dtype=bool),
             "shield_clearance_m": None if shield_clearance_m is None else np.array(shield_clearance_m),
+            "primitive": drawn,
         }
         self._put("step", t_mono_s, decision)
+
+    def camera(
+        self,
+        t_mono_s: float,
+        *,
+        width_px: int,
+        height_px: int,
+        hfov_deg: float,
+        vfov_deg: float,
+        offset_body_m: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> None:
+        """The depth camera: image size, fields of view (a pinhole model, ``CameraCalibration``)
+        and its mount (``offset_body_m``: forward, left, up of the body origin, m; looking along
+        body +x), the ``body -> camera_depth_optical`` transform. Call once, before the flight."""
+        offset = np.array(offset_body_m, dtype=np.float64).reshape(3)
+        model = (int(width_px), int(height_px), float(hfov_deg), float(vfov_deg), offset)
+        self._put("camera", t_mono_s, model)
+
+    def geofence(self, t_mono_s: float, min_m: ArrayLike, max_m: ArrayLike) -> None:
+        """The geofence (world box, m: its lowest and highest corner), drawn in the 3-D scene."""
+        box = (np.array(min_m, dtype=np.float64), np.array(max_m, dtype=np.float64))
+        self._put("geofence", t_mono_s, box)
+
+    def world(self, t_mono_s: float, world: Mapping[str, Any]) -> None:
+        """The world flown (the sim harness's world-file mapping, ``sim_harness.world``): its
+        obstacles, floor and ceiling in the 3-D scene, its YAML as metadata ``world``. Dry runs."""
+        self._put("world", t_mono_s, json.loads(json.dumps(dict(world), default=list)))
+
+    def px4_time(self, t_mono_s: float, px4_boot_us: int, px4_unix_us: int = 0) -> None:
+        """PX4's clock: a MAVLink SYSTEM_TIME (``time_boot_ms`` as us, ``time_unix_usec``) that
+        arrived at ``t_mono_s``; lines the record up with the flight's ULog."""
+        self._put("px4_time", t_mono_s, (int(px4_boot_us), int(px4_unix_us)))
 
     def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None:
         """Autopilot state: armed, flight mode name (e.g. "OFFBOARD", "HOLD") and health flags."""

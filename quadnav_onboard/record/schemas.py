@@ -1,134 +1,108 @@
-"""What a flight record holds: topics, JSON schemas and the pure encoders of each message.
+"""What a flight record holds: topics, schemas and the pure encoders of each message.
 
-A record is one MCAP file per flight, JSON message encoding. Where a Foxglove well-known schema
-fits (raw images, poses, logs) it is used by name, so Foxglove shows the record without plugins;
-extra fields beyond the Foxglove schema (e.g. the decision step of a network input) are allowed by
-JSON and ignored by Foxglove. quadnav's own messages (decisions, setpoints, vehicle state, the
-stop) have ``quadnav.*`` JSON schemas.
+A record is one MCAP file per flight. Where one of Foxglove's well-known schemas fits (images,
+camera calibration, transforms, poses, 3-D scenes, logs) the message is that schema, protobuf
+encoded by Foxglove's SDK (``foxglove.messages``), so Foxglove shows the record without
+plugins. Where none fits (the planner's step record, the vehicle state, the stop, PX4's clock)
+the message is JSON with a ``quadnav.*`` JSON schema (:data:`JSON_SCHEMAS`).
 
-Frames: ``world`` is the world frame (x forward, y left, z up, m); ``heading`` is the path-yaw
-frame the planner sees. Timestamps are ``time.monotonic()`` of the recording process, written as
-MCAP log times in ns and as Foxglove ``{sec, nsec}``; metadata ``recorder.unix_minus_mono_s``
-converts them to wall-clock time.
+Frames (a FrameTransform tree): ``world`` (x forward, y left, z up, m) -> ``body`` (the odometry's
+pose, FLU) -> ``camera_depth_optical`` (the depth camera at its mount offset, optical axes: x
+right, y down, z forward). The 3-D scene's entities are in ``world``.
 
-Everything here is pure: encoders take values and return JSON-ready dicts.
+Time: every log time, and every Foxglove ``timestamp``, is wall-clock (UTC) ns: the recording
+process's ``time.monotonic()`` plus one offset taken when the record was opened (metadata
+``recorder.unix_minus_mono_ns``), so log times keep the monotonic clock's order and spacing.
+The quadnav JSON messages also carry ``t_mono_s``, the monotonic time itself.
+
+Everything here is pure: encoders take values and return the message's bytes.
 """
 
 from __future__ import annotations
 
-import base64
+import json
 import math
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from foxglove.messages import (
+    CameraCalibration,
+    FrameTransform,
+    Log,
+    LogLevel,
+    Pose,
+    PoseInFrame,
+    PosesInFrame,
+    Quaternion,
+    RawImage,
+    SceneUpdate,
+    Timestamp,
+    Vector3,
+)
 from numpy.typing import ArrayLike
 
 __all__ = [
+    "CAMERA_FRAME",
     "FORMAT",
     "FORMAT_VERSION",
-    "SCHEMAS",
+    "JSON_SCHEMAS",
+    "PROTOBUF_SCHEMAS",
     "TOPICS",
-    "decode_image",
+    "encode_calibration",
     "encode_depth",
     "encode_event",
-    "encode_moving_setpoint",
     "encode_network_input",
-    "encode_odometry",
     "encode_path",
-    "encode_setpoint",
+    "encode_pose",
+    "encode_px4_time",
     "encode_step",
     "encode_stop",
+    "encode_transform",
     "encode_vehicle",
-    "from_ns",
+    "optical_from_body_quat",
     "to_jsonable",
     "to_ns",
 ]
 
 FORMAT = "quadnav-flight-record"
 """Value of metadata ``recorder.format``: how :mod:`reader` tells our records from other MCAPs."""
-FORMAT_VERSION = 1
-"""Bumped on an incompatible change of a topic's content."""
+FORMAT_VERSION = 2
+"""Bumped on an incompatible change of a topic's content (1: JSON messages, monotonic log times)."""
+CAMERA_FRAME = "camera_depth_optical"
+"""Frame of the depth image and its calibration."""
 
-_TIME = {
-    "type": "object",
-    "title": "time",
-    "properties": {
-        "sec": {"type": "integer", "minimum": 0},
-        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
-    },
+PROTOBUF_SCHEMAS: dict[str, Any] = {
+    cls.get_schema().name: cls
+    for cls in (RawImage, CameraCalibration, FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate, Log)
 }
-_VEC3 = {
-    "type": "object",
-    "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}},
-}
-_QUAT = {
-    "type": "object",
-    "properties": {k: {"type": "number"} for k in ("x", "y", "z", "w")},
-}
-_POSE = {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}}
+"""Foxglove well-known schema name -> the SDK's message class (protobuf)."""
+
+_VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 
 
-def _obj(title: str, description: str, **props: Any) -> dict[str, Any]:
-    return {"title": title, "description": description, "type": "object", "properties": props}
+def _obj(title: str, description: str, required: list[str], **props: Any) -> dict[str, Any]:
+    return {"title": title, "description": description, "type": "object", "properties": props,
+            "required": required}
 
 
-SCHEMAS: dict[str, dict[str, Any]] = {
-    "foxglove.RawImage": _obj(
-        "foxglove.RawImage",
-        "A raw image (16UC1 depth in mm, or 32FC1 network input in [0, 1])",
-        timestamp=_TIME,
-        frame_id={"type": "string"},
-        width={"type": "integer", "minimum": 0},
-        height={"type": "integer", "minimum": 0},
-        encoding={"type": "string"},
-        step={"type": "integer", "minimum": 0, "description": "bytes per row"},
-        data={"type": "string", "contentEncoding": "base64"},
-        decision_step={"type": "integer", "description": "quadnav: planner step of a network input"},
-    ),
-    "foxglove.PoseInFrame": _obj(
-        "foxglove.PoseInFrame",
-        "A timestamped pose in a frame (quadnav adds velocity/yaw fields where known)",
-        timestamp=_TIME,
-        frame_id={"type": "string"},
-        pose=_POSE,
-        vel_world_m_s=_VEC3,
-        yaw_rad={"type": "number"},
-    ),
-    "foxglove.PosesInFrame": _obj(
-        "foxglove.PosesInFrame",
-        "An array of poses in a frame (the rough path's waypoints)",
-        timestamp=_TIME,
-        frame_id={"type": "string"},
-        poses={"type": "array", "items": _POSE},
-    ),
-    "foxglove.Log": _obj(
-        "foxglove.Log",
-        "A log message (quadnav: supervisor and daemon events; `kind` and `fields` added)",
-        timestamp=_TIME,
-        level={"type": "integer", "minimum": 0, "maximum": 5},
-        message={"type": "string"},
-        name={"type": "string"},
-        file={"type": "string"},
-        line={"type": "integer", "minimum": 0},
-        kind={"type": "string"},
-        fields={"type": "object"},
-    ),
+JSON_SCHEMAS: dict[str, dict[str, Any]] = {
     "quadnav.Step": _obj(
         "quadnav.Step",
         "One planner decision: what it chose, from which Q-values, and how the step went",
-        timestamp=_TIME,
+        ["t_mono_s", "step", "action", "q_values", "reward", "progress_m", "deviation_m"],
+        t_mono_s={"type": "number", "description": "decision time, time.monotonic() (s)"},
         step={"type": "integer", "minimum": 0},
         action={"type": "integer", "minimum": 0},
-        q_values={"type": "array", "items": {"type": "number"}},
+        q_values={"type": "array", "items": {"type": ["number", "null"]}},
         rel_pos_body_m={**_VEC3, "description": "setpoint - quad in the heading frame (m)"},
         moving_setpoint_world_m=_VEC3,
         pos_world_m=_VEC3,
-        reward={"type": "number"},
+        reward={"type": ["number", "null"]},
         reward_terms={"type": "object"},
-        progress_m={"type": "number", "description": "arc length of the closest path point (m)"},
-        deviation_m={"type": "number", "description": "distance to the rough path (m)"},
-        latency_ms={"type": "number", "description": "depth capture to setpoint sent (ms)"},
+        progress_m={"type": ["number", "null"], "description": "arc length of the closest path point (m)"},
+        deviation_m={"type": ["number", "null"], "description": "distance to the rough path (m)"},
+        latency_ms={"type": ["number", "null"], "description": "depth capture to setpoint sent (ms)"},
         shield_allowed={
             "type": "array",
             "items": {"type": "boolean"},
@@ -136,30 +110,36 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         },
         shield_clearance_m={
             "type": "array",
-            "items": {"type": "number"},
+            "items": {"type": ["number", "null"]},
             "description": "the filter's clearance (m) of every primitive (absent when it is off)",
         },
-    ),
-    "quadnav.Setpoint": _obj(
-        "quadnav.Setpoint",
-        "A commanded position setpoint sent to the autopilot (world frame)",
-        timestamp=_TIME,
-        pos_world_m=_VEC3,
-        vel_world_m_s=_VEC3,
-        yaw_rad={"type": "number"},
     ),
     "quadnav.Vehicle": _obj(
         "quadnav.Vehicle",
         "Autopilot state: armed, flight mode and health flags",
-        timestamp=_TIME,
+        ["t_mono_s", "armed", "mode"],
+        t_mono_s={"type": "number"},
         armed={"type": "boolean"},
         mode={"type": "string"},
         health={"type": "object"},
     ),
+    "quadnav.Px4Time": _obj(
+        "quadnav.Px4Time",
+        "PX4's clock seen from this computer (MAVLink SYSTEM_TIME): lines the record up with the ULog",
+        ["t_mono_s", "px4_boot_us", "unix_minus_px4_boot_us"],
+        t_mono_s={"type": "number", "description": "arrival of SYSTEM_TIME, time.monotonic() (s)"},
+        px4_boot_us={"type": "integer", "description": "PX4 time since boot (us): ULog timestamps"},
+        px4_unix_us={"type": ["integer", "null"], "description": "PX4's own UTC (us); 0/null: unknown"},
+        unix_minus_px4_boot_us={
+            "type": "integer",
+            "description": "this record's UTC (us) minus PX4 boot time (us): add it to a ULog timestamp",
+        },
+    ),
     "quadnav.Stop": _obj(
         "quadnav.Stop",
         "Why the flight stopped, the flight summary, and the recorder's drop counts",
-        timestamp=_TIME,
+        ["t_mono_s", "stop_reason"],
+        t_mono_s={"type": "number"},
         stop_reason={"type": "string"},
         summary={"type": "object"},
         dropped={"type": "object"},
@@ -168,50 +148,72 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 
 TOPICS: dict[str, str] = {
     "/camera/depth": "foxglove.RawImage",
+    "/camera/depth/calibration": "foxglove.CameraCalibration",
     "/planner/input": "foxglove.RawImage",
+    "/tf": "foxglove.FrameTransform",
+    "/tf_static": "foxglove.FrameTransform",
     "/odometry": "foxglove.PoseInFrame",
-    "/setpoint": "quadnav.Setpoint",
-    "/setpoint/pose": "foxglove.PoseInFrame",
+    "/setpoint": "foxglove.PoseInFrame",
     "/planner/moving_setpoint": "foxglove.PoseInFrame",
     "/planner/path": "foxglove.PosesInFrame",
     "/planner/step": "quadnav.Step",
+    "/planner/primitives": "foxglove.SceneUpdate",
+    "/scene/world": "foxglove.SceneUpdate",
+    "/scene/mission": "foxglove.SceneUpdate",
     "/vehicle": "quadnav.Vehicle",
+    "/vehicle/px4_time": "quadnav.Px4Time",
     "/events": "foxglove.Log",
     "/flight/stop": "quadnav.Stop",
 }
 """Topic -> schema name. Every record registers all of them, in this order."""
 
-_LEVELS = {"debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
+_LEVELS = {"debug": LogLevel.Debug, "info": LogLevel.Info, "warning": LogLevel.Warning,
+           "error": LogLevel.Error, "fatal": LogLevel.Fatal}
+EVENT_FIELDS_SEPARATOR = "\t"
+"""In an event's Log message, what separates the text from its fields (JSON)."""
 
 
-def to_ns(t_mono_s: float) -> int:
-    """Monotonic seconds -> integer ns (MCAP log time); negative or non-finite times are errors."""
-    if not math.isfinite(t_mono_s) or t_mono_s < 0:
-        raise ValueError(f"t_mono_s must be finite and >= 0, got {t_mono_s!r}")
-    return round(t_mono_s * 1e9)
+def to_ns(t_s: float) -> int:
+    """Seconds -> integer ns; negative or non-finite times are errors."""
+    if not math.isfinite(t_s) or t_s < 0:
+        raise ValueError(f"time must be finite and >= 0, got {t_s!r}")
+    return round(t_s * 1e9)
 
 
-def from_ns(t_ns: int) -> float:
-    return t_ns * 1e-9
+def _stamp(t_ns: int) -> Timestamp:
+    sec, nsec = divmod(int(t_ns), 1_000_000_000)
+    return Timestamp(sec=sec, nsec=nsec)
 
 
-def _stamp(t_mono_s: float) -> dict[str, int]:
-    sec, nsec = divmod(to_ns(t_mono_s), 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
+def _v3(v: ArrayLike) -> Vector3:
+    """A finite 3-vector (a NaN pose or transform would break the 3-D panel's tree: an error)."""
+    x, y, z = np.asarray(v, dtype=np.float64).reshape(3).tolist()
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ValueError(f"vector must be finite, got {[x, y, z]}")
+    return Vector3(x=x, y=y, z=z)
 
 
-def _vec3(v: ArrayLike) -> dict[str, float]:
-    a = np.asarray(v, dtype=np.float64).reshape(3)
-    return {"x": float(a[0]), "y": float(a[1]), "z": float(a[2])}
+def _q(q_wxyz: ArrayLike) -> Quaternion:
+    """A finite quaternion given as (w, x, y, z)."""
+    w, x, y, z = np.asarray(q_wxyz, dtype=np.float64).reshape(4).tolist()
+    if not all(math.isfinite(c) for c in (w, x, y, z)):
+        raise ValueError(f"quaternion must be finite, got {[w, x, y, z]}")
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
-def _quat(q_wxyz: ArrayLike) -> dict[str, float]:
-    q = np.asarray(q_wxyz, dtype=np.float64).reshape(4)
-    return {"x": float(q[1]), "y": float(q[2]), "z": float(q[3]), "w": float(q[0])}
+def _yaw_q(yaw_rad: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(yaw_rad / 2), w=math.cos(yaw_rad / 2))
 
 
-def _yaw_quat(yaw_rad: float) -> dict[str, float]:
-    return {"x": 0.0, "y": 0.0, "z": math.sin(yaw_rad / 2), "w": math.cos(yaw_rad / 2)}
+def _finite(values: Any) -> list[Any]:
+    """A float array as a list with NaN/inf as None (JSON has neither)."""
+    a = np.asarray(values, dtype=np.float64).reshape(-1)
+    return [v if math.isfinite(v) else None for v in a.tolist()]
+
+
+def _vec_json(v: ArrayLike) -> dict[str, Any]:
+    x, y, z = _finite(v)[:3]
+    return {"x": x, "y": y, "z": z}
 
 
 def to_jsonable(value: Any) -> Any:
@@ -234,166 +236,157 @@ def to_jsonable(value: Any) -> Any:
     return str(value)
 
 
-def _image(t_mono_s: float, img: np.ndarray, encoding: str, frame_id: str) -> dict[str, Any]:
-    data = np.ascontiguousarray(img.astype(img.dtype.newbyteorder("<"), copy=False))
-    return {
-        "timestamp": _stamp(t_mono_s),
-        "frame_id": frame_id,
-        "width": int(img.shape[1]),
-        "height": int(img.shape[0]),
-        "encoding": encoding,
-        "step": int(img.shape[1] * img.dtype.itemsize),
-        "data": base64.b64encode(data.tobytes()).decode("ascii"),
-    }
+def _json(msg: Mapping[str, Any]) -> bytes:
+    return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
 
 
-def encode_depth(t_mono_s: float, depth_mm: np.ndarray) -> dict[str, Any]:
+def _image(t_ns: int, img: np.ndarray, encoding: str, frame_id: str) -> bytes:
+    data = np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("<"))
+    return RawImage(
+        timestamp=_stamp(t_ns),
+        frame_id=frame_id,
+        width=int(img.shape[1]),
+        height=int(img.shape[0]),
+        encoding=encoding,
+        step=int(img.shape[1] * img.dtype.itemsize),
+        data=data.tobytes(),
+    ).encode()
+
+
+def encode_depth(t_ns: int, depth_mm: np.ndarray) -> bytes:
     """Raw depth (uint16 mm, (H, W), 0 = invalid) as foxglove.RawImage ``16UC1``."""
     img = np.asarray(depth_mm)
     if img.ndim != 2 or img.dtype != np.uint16:
         raise ValueError(f"depth_mm must be uint16 (H, W), got {img.dtype} {img.shape}")
-    return _image(t_mono_s, img, "16UC1", "camera_depth_optical")
+    return _image(t_ns, img, "16UC1", CAMERA_FRAME)
 
 
-def encode_network_input(t_mono_s: float, step: int, input_32: np.ndarray) -> dict[str, Any]:
-    """The planner's depth input (float32 (32, 32) in [0, 1]) as foxglove.RawImage ``32FC1``."""
+def encode_network_input(t_ns: int, input_32: np.ndarray) -> bytes:
+    """The planner's depth input (float32 (32, 32) in [0, 1]) as foxglove.RawImage ``32FC1``; its
+    decision is the /planner/step of the same time stamp."""
     img = np.asarray(input_32, dtype=np.float32)
     if img.ndim != 2:
         raise ValueError(f"input_32 must be 2-D, got shape {img.shape}")
-    msg = _image(t_mono_s, img, "32FC1", "planner_input")
-    msg["decision_step"] = int(step)
-    return msg
+    return _image(t_ns, img, "32FC1", "planner_input")
 
 
-def decode_image(msg: Mapping[str, Any]) -> np.ndarray:
-    """Inverse of :func:`encode_depth` / :func:`encode_network_input`: (H, W) uint16 or float32."""
-    dtype = {"16UC1": "<u2", "32FC1": "<f4"}.get(msg["encoding"])
-    if dtype is None:
-        raise ValueError(f"unsupported image encoding {msg['encoding']!r}")
-    raw = base64.b64decode(msg["data"])
-    return np.frombuffer(raw, dtype=dtype).reshape(int(msg["height"]), int(msg["width"])).astype(dtype[1:])
+def optical_from_body_quat() -> tuple[float, float, float, float]:
+    """Rotation (w, x, y, z) of the optical frame (x right, y down, z forward) in the body (FLU)."""
+    return (0.5, -0.5, 0.5, -0.5)
 
 
-def encode_odometry(
-    t_mono_s: float, pos_world_m: ArrayLike, quat_world_body: ArrayLike, vel_world_m_s: ArrayLike | None
-) -> dict[str, Any]:
-    """Vehicle pose (world frame, quaternion w,x,y,z body FLU -> world) as foxglove.PoseInFrame."""
-    msg: dict[str, Any] = {
-        "timestamp": _stamp(t_mono_s),
-        "frame_id": "world",
-        "pose": {"position": _vec3(pos_world_m), "orientation": _quat(quat_world_body)},
-    }
-    if vel_world_m_s is not None:
-        msg["vel_world_m_s"] = _vec3(vel_world_m_s)
-    return msg
+def encode_calibration(
+    t_ns: int, width_px: int, height_px: int, hfov_deg: float, vfov_deg: float
+) -> bytes:
+    """A pinhole model of the depth camera from its fields of view, as foxglove.CameraCalibration."""
+    if width_px < 1 or height_px < 1 or not (0 < hfov_deg < 180 and 0 < vfov_deg < 180):
+        raise ValueError(f"bad camera model {width_px}x{height_px} px, fov {hfov_deg} x {vfov_deg} deg")
+    fx = (width_px / 2) / math.tan(math.radians(hfov_deg) / 2)
+    fy = (height_px / 2) / math.tan(math.radians(vfov_deg) / 2)
+    cx, cy = width_px / 2, height_px / 2
+    return CameraCalibration(
+        timestamp=_stamp(t_ns),
+        frame_id=CAMERA_FRAME,
+        width=int(width_px),
+        height=int(height_px),
+        distortion_model="plumb_bob",
+        D=[0.0] * 5,
+        K=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        P=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    ).encode()
 
 
-def encode_setpoint(
-    t_mono_s: float, pos_world_m: ArrayLike, vel_world_m_s: ArrayLike, yaw_rad: float
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """A commanded setpoint: (quadnav.Setpoint, the same as foxglove.PoseInFrame for the 3D view)."""
-    sp = {
-        "timestamp": _stamp(t_mono_s),
-        "pos_world_m": _vec3(pos_world_m),
-        "vel_world_m_s": _vec3(vel_world_m_s),
-        "yaw_rad": float(yaw_rad),
-    }
-    pose = {
-        "timestamp": sp["timestamp"],
-        "frame_id": "world",
-        "pose": {"position": sp["pos_world_m"], "orientation": _yaw_quat(float(yaw_rad))},
-    }
-    return sp, pose
+def encode_transform(
+    t_ns: int, parent: str, child: str, translation_m: ArrayLike, rotation_wxyz: ArrayLike
+) -> bytes:
+    """``child``'s pose in ``parent`` as foxglove.FrameTransform (rotation w, x, y, z)."""
+    return FrameTransform(
+        timestamp=_stamp(t_ns),
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=_v3(translation_m),
+        rotation=_q(rotation_wxyz),
+    ).encode()
 
 
-def encode_moving_setpoint(t_mono_s: float, pos_world_m: ArrayLike) -> dict[str, Any]:
-    return {
-        "timestamp": _stamp(t_mono_s),
-        "frame_id": "world",
-        "pose": {"position": _vec3(pos_world_m), "orientation": _yaw_quat(0.0)},
-    }
+def encode_pose(t_ns: int, pos_world_m: ArrayLike, quat_wxyz: ArrayLike | None = None,
+                yaw_rad: float = 0.0) -> bytes:
+    """A pose in ``world`` as foxglove.PoseInFrame: attitude ``quat_wxyz``, else the yaw alone."""
+    q = _yaw_q(float(yaw_rad)) if quat_wxyz is None else _q(quat_wxyz)
+    return PoseInFrame(
+        timestamp=_stamp(t_ns), frame_id="world", pose=Pose(position=_v3(pos_world_m), orientation=q)
+    ).encode()
 
 
-def encode_path(t_mono_s: float, waypoints_m: ArrayLike) -> dict[str, Any]:
+def encode_path(t_ns: int, waypoints_m: ArrayLike) -> bytes:
     """The rough path's waypoints (world, m, (K, 3)) as foxglove.PosesInFrame."""
     wps = np.asarray(waypoints_m, dtype=np.float64)
     if wps.ndim != 2 or wps.shape[1] != 3 or len(wps) < 2:
         raise ValueError(f"waypoints_m must have shape (K>=2, 3), got {wps.shape}")
-    poses = [{"position": _vec3(w), "orientation": _yaw_quat(0.0)} for w in wps]
-    return {"timestamp": _stamp(t_mono_s), "frame_id": "world", "poses": poses}
+    poses = [Pose(position=_v3(w), orientation=_yaw_q(0.0)) for w in wps]
+    return PosesInFrame(timestamp=_stamp(t_ns), frame_id="world", poses=poses).encode()
 
 
-def encode_step(
-    t_mono_s: float,
-    *,
-    step: int,
-    action: int,
-    q_values: ArrayLike,
-    rel_pos_body_m: ArrayLike,
-    moving_setpoint_world_m: ArrayLike,
-    pos_world_m: ArrayLike,
-    reward: float,
-    reward_terms: Mapping[str, Any],
-    progress_m: float,
-    deviation_m: float,
-    latency_ms: float,
-    shield_allowed: ArrayLike | None = None,
-    shield_clearance_m: ArrayLike | None = None,
-) -> dict[str, Any]:
-    """One planner decision as quadnav.Step (the shield's verdict only when it was on)."""
-    shield = {}
-    if shield_allowed is not None:
-        shield["shield_allowed"] = [bool(a) for a in np.asarray(shield_allowed).reshape(-1)]
-    if shield_clearance_m is not None:
-        clearance = np.asarray(shield_clearance_m, dtype=np.float64).reshape(-1)
-        shield["shield_clearance_m"] = to_jsonable(clearance)
-    return shield | {
-        "timestamp": _stamp(t_mono_s),
-        "step": int(step),
-        "action": int(action),
-        "q_values": to_jsonable(np.asarray(q_values, dtype=np.float64).reshape(-1)),
-        "rel_pos_body_m": _vec3(rel_pos_body_m),
-        "moving_setpoint_world_m": _vec3(moving_setpoint_world_m),
-        "pos_world_m": _vec3(pos_world_m),
-        "reward": to_jsonable(float(reward)),
-        "reward_terms": to_jsonable(dict(reward_terms)),
-        "progress_m": to_jsonable(float(progress_m)),
-        "deviation_m": to_jsonable(float(deviation_m)),
-        "latency_ms": to_jsonable(float(latency_ms)),
+def encode_step(t_mono_s: float, d: Mapping[str, Any]) -> bytes:
+    """One planner decision (the recorder's step dict) as quadnav.Step JSON; the shield's verdict
+    only when it was on."""
+    msg: dict[str, Any] = {
+        "t_mono_s": float(t_mono_s),
+        "step": int(d["step"]),
+        "action": int(d["action"]),
+        "q_values": _finite(d["q_values"]),
+        "rel_pos_body_m": _vec_json(d["rel_pos_body_m"]),
+        "moving_setpoint_world_m": _vec_json(d["moving_setpoint_world_m"]),
+        "pos_world_m": _vec_json(d["pos_world_m"]),
+        "reward": _finite([d["reward"]])[0],
+        "reward_terms": to_jsonable(dict(d["reward_terms"])),
+        "progress_m": _finite([d["progress_m"]])[0],
+        "deviation_m": _finite([d["deviation_m"]])[0],
+        "latency_ms": _finite([d["latency_ms"]])[0],
     }
+    if d.get("shield_allowed") is not None:
+        msg["shield_allowed"] = [bool(a) for a in np.asarray(d["shield_allowed"]).reshape(-1).tolist()]
+    if d.get("shield_clearance_m") is not None:
+        msg["shield_clearance_m"] = _finite(d["shield_clearance_m"])
+    return _json(msg)
 
 
-def encode_vehicle(t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> dict[str, Any]:
-    return {
-        "timestamp": _stamp(t_mono_s),
-        "armed": bool(armed),
-        "mode": str(mode),
-        "health": to_jsonable(dict(health)),
-    }
+def encode_vehicle(t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> bytes:
+    return _json({"t_mono_s": float(t_mono_s), "armed": bool(armed), "mode": str(mode),
+                  "health": to_jsonable(dict(health))})
 
 
-def encode_event(t_mono_s: float, kind: str, message: str, fields: Mapping[str, Any]) -> dict[str, Any]:
-    """A supervisor/daemon event as foxglove.Log; ``fields['level']`` (debug..fatal) sets the level."""
+def encode_px4_time(t_mono_s: float, unix_minus_mono_ns: int, px4_boot_us: int, px4_unix_us: int) -> bytes:
+    """PX4's clock at ``t_mono_s`` (SYSTEM_TIME's arrival) as quadnav.Px4Time."""
+    if px4_boot_us < 0:
+        raise ValueError(f"px4_boot_us must be >= 0, got {px4_boot_us}")
+    unix_us = (to_ns(t_mono_s) + unix_minus_mono_ns) // 1000
+    return _json({
+        "t_mono_s": float(t_mono_s),
+        "px4_boot_us": int(px4_boot_us),
+        "px4_unix_us": int(px4_unix_us) or None,
+        "unix_minus_px4_boot_us": int(unix_us - px4_boot_us),
+    })
+
+
+def encode_event(t_ns: int, kind: str, message: str, fields: Mapping[str, Any]) -> bytes:
+    """A supervisor/daemon event as foxglove.Log: ``name`` is its kind; ``fields['level']``
+    (debug..fatal) sets the level; the other fields follow the text as JSON after a tab."""
     f = dict(fields)
-    level = _LEVELS.get(str(f.pop("level", "info")).lower(), 2)
-    return {
-        "timestamp": _stamp(t_mono_s),
-        "level": level,
-        "message": str(message),
-        "name": "quadnav",
-        "file": "",
-        "line": 0,
-        "kind": str(kind),
-        "fields": to_jsonable(f),
-    }
+    level = _LEVELS.get(str(f.pop("level", "info")).lower(), LogLevel.Info)
+    text = str(message).replace(EVENT_FIELDS_SEPARATOR, " ")
+    if f:
+        text += EVENT_FIELDS_SEPARATOR + json.dumps(to_jsonable(f), separators=(",", ":"))
+    return Log(timestamp=_stamp(t_ns), level=level, message=text, name=str(kind)).encode()
 
 
 def encode_stop(
     t_mono_s: float, stop_reason: str, summary: Mapping[str, Any], dropped: Mapping[str, int]
-) -> dict[str, Any]:
-    return {
-        "timestamp": _stamp(t_mono_s),
+) -> bytes:
+    return _json({
+        "t_mono_s": float(t_mono_s),
         "stop_reason": str(stop_reason),
         "summary": to_jsonable(dict(summary)),
         "dropped": to_jsonable(dict(dropped)),
-    }
+    })

@@ -1,9 +1,11 @@
 """The MCAP side of the flight recorder: encode quadnav messages and write them into one file.
 
-:class:`McapSink` owns an open file and an ``mcap`` writer (zstd chunks with CRCs). It is not
-thread-safe: one owner calls it, the recorder's writer thread or its writer process
+:class:`McapSink` owns an open file and an ``mcap`` writer (zstd chunks with CRCs); messages are
+encoded by :mod:`schemas` and :mod:`scene` (Foxglove's SDK, protobuf; JSON for quadnav's own).
+It is not thread-safe: one owner calls it, the recorder's writer thread or its writer process
 (:mod:`quadnav_onboard.record.writer_process`). Items are ``(kind, t_mono_s, payload)`` tuples as
-the :class:`~quadnav_onboard.record.recorder.FlightRecorder` queues them.
+the :class:`~quadnav_onboard.record.recorder.FlightRecorder` queues them; log times are
+``t_mono_s`` on the wall clock (see :mod:`schemas`).
 """
 
 from __future__ import annotations
@@ -14,10 +16,13 @@ import os
 from collections.abc import Callable, Mapping
 from typing import Any, BinaryIO
 
+import yaml
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from quadnav_onboard import __version__
+from quadnav_onboard.primitives import PrimitiveSet
+from quadnav_onboard.record import scene
 from quadnav_onboard.record import schemas as S
 
 __all__ = ["Item", "McapSink"]
@@ -25,15 +30,15 @@ __all__ = ["Item", "McapSink"]
 Item = tuple[str, float, Any]
 """One queued datum: (kind, t_mono_s, payload)."""
 
-
-def _json(msg: Mapping[str, Any]) -> bytes:
-    return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+_BODY_FROM_OPTICAL = S.optical_from_body_quat()
 
 
 class McapSink:
     """Write one flight record into ``file`` (opened for binary writing; closed by :meth:`finish`).
 
-    ``on_invalid(kind, error)`` is called for an item that cannot be encoded (it is skipped).
+    ``unix_minus_mono_s``: wall-clock minus monotonic time (s) when the record was opened; every
+    log time is ``t_mono_s`` plus it. ``on_invalid(kind, error)`` is called for an item that
+    cannot be encoded (it is skipped).
     """
 
     def __init__(
@@ -52,15 +57,24 @@ class McapSink:
         self._on_invalid = on_invalid
         self.invalid = 0
         self._seq = 0
+        self._offset_ns = round(float(unix_minus_mono_s) * 1e9)
+        self._prims: PrimitiveSet | None = None
         self._writer = Writer(file, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_crcs=True)
         self._writer.start(profile="", library=f"quadnav {__version__}")
-        schema_ids = {
-            name: self._writer.register_schema(name, SchemaEncoding.JSONSchema, json.dumps(schema).encode())
-            for name, schema in S.SCHEMAS.items()
-        }
+        schema_ids: dict[str, int] = {}
+        for name, cls in S.PROTOBUF_SCHEMAS.items():
+            sch = cls.get_schema()
+            schema_ids[name] = self._writer.register_schema(name, sch.encoding, sch.data)
+        for name, js in S.JSON_SCHEMAS.items():
+            data = json.dumps(js).encode()
+            schema_ids[name] = self._writer.register_schema(name, SchemaEncoding.JSONSchema, data)
         self._channels = {
-            topic: self._writer.register_channel(topic, MessageEncoding.JSON, schema_ids[schema_name])
-            for topic, schema_name in S.TOPICS.items()
+            topic: self._writer.register_channel(
+                topic,
+                MessageEncoding.Protobuf if name in S.PROTOBUF_SCHEMAS else MessageEncoding.JSON,
+                schema_ids[name],
+            )
+            for topic, name in S.TOPICS.items()
         }
         self._writer.add_metadata("quadnav", {str(k): str(v) for k, v in metadata.items()})
         self._writer.add_metadata(
@@ -69,7 +83,8 @@ class McapSink:
                 "format": S.FORMAT,
                 "format_version": str(S.FORMAT_VERSION),
                 "depth_decimation": str(int(depth_decimation)),
-                "unix_minus_mono_s": repr(float(unix_minus_mono_s)),
+                "unix_minus_mono_ns": str(self._offset_ns),
+                "log_time": "wall clock (UTC) ns: time.monotonic() + unix_minus_mono_ns",
                 "library": f"quadnav {__version__}",
             },
         )
@@ -84,31 +99,69 @@ class McapSink:
         keys = ("metadata", "depth_decimation", "unix_minus_mono_s", "chunk_size", "fsync")
         return cls(file, **{k: options[k] for k in keys}, on_invalid=on_invalid)
 
-    @staticmethod
-    def encode(kind: str, t: float, p: Any) -> list[tuple[str, dict[str, Any]]]:
-        """The (topic, message) pairs of one item; raises ValueError/TypeError if it is invalid."""
+    def wall_ns(self, t_mono_s: float) -> int:
+        """The log time (wall clock, ns) of monotonic time ``t_mono_s``."""
+        return S.to_ns(t_mono_s) + self._offset_ns
+
+    def encode(self, kind: str, t: float, p: Any) -> list[tuple[str, bytes]]:
+        """The (topic, message bytes) pairs of one item; raises ValueError/TypeError/KeyError if
+        it is invalid."""
+        ns = self.wall_ns(t)
         if kind == "depth":
-            return [("/camera/depth", S.encode_depth(t, p))]
+            return [("/camera/depth", S.encode_depth(ns, p))]
         if kind == "input":
-            return [("/planner/input", S.encode_network_input(t, p[0], p[1]))]
+            return [("/planner/input", S.encode_network_input(ns, p[1]))]
         if kind == "odom":
-            return [("/odometry", S.encode_odometry(t, *p))]
-        if kind == "setpoint":
-            sp, pose = S.encode_setpoint(t, *p)
-            return [("/setpoint", sp), ("/setpoint/pose", pose)]
-        if kind == "path":
-            return [("/planner/path", S.encode_path(t, p))]
-        if kind == "step":
-            msg = S.encode_step(t, **p)
+            pos, quat, _vel = p
             return [
-                ("/planner/step", msg),
-                ("/planner/moving_setpoint", S.encode_moving_setpoint(t, p["moving_setpoint_world_m"])),
+                ("/odometry", S.encode_pose(ns, pos, quat)),
+                ("/tf", S.encode_transform(ns, "world", "body", pos, quat)),
             ]
+        if kind == "setpoint":
+            pos, _vel, yaw = p
+            return [("/setpoint", S.encode_pose(ns, pos, yaw_rad=yaw))]
+        if kind == "path":
+            return [
+                ("/planner/path", S.encode_path(ns, p)),
+                ("/scene/mission", scene.encode_rough_path(ns, p)),
+            ]
+        if kind == "step":
+            return self._step(ns, t, p)
         if kind == "vehicle":
             return [("/vehicle", S.encode_vehicle(t, *p))]
         if kind == "event":
-            return [("/events", S.encode_event(t, *p))]
+            return [("/events", S.encode_event(ns, *p))]
+        if kind == "camera":
+            width, height, hfov, vfov, offset = p
+            return [
+                ("/camera/depth/calibration", S.encode_calibration(ns, width, height, hfov, vfov)),
+                ("/tf_static", S.encode_transform(ns, "body", S.CAMERA_FRAME, offset, _BODY_FROM_OPTICAL)),
+            ]
+        if kind == "geofence":
+            return [("/scene/mission", scene.encode_geofence(ns, *p))]
+        if kind == "world":
+            return [("/scene/world", scene.encode_world(ns, p))]
+        if kind == "px4_time":
+            return [("/vehicle/px4_time", S.encode_px4_time(t, self._offset_ns, *p))]
         raise ValueError(f"unknown message kind {kind!r}")
+
+    def _step(self, ns: int, t: float, d: Mapping[str, Any]) -> list[tuple[str, bytes]]:
+        out = [
+            ("/planner/step", S.encode_step(t, d)),
+            ("/planner/moving_setpoint", S.encode_pose(ns, d["moving_setpoint_world_m"])),
+        ]
+        prim = d.get("primitive")
+        if prim is not None and self._prims is not None:
+            start, vel, yaw = prim
+            out.append((
+                "/planner/primitives",
+                scene.encode_primitives(
+                    ns, self._prims, start_world_m=start, start_vel_world_m_s=vel, yaw_rad=yaw,
+                    action=d["action"], allowed=d.get("shield_allowed"),
+                    moving_setpoint_world_m=d["moving_setpoint_world_m"],
+                ),
+            ))
+        return out
 
     def write(self, kind: str, t: float, payload: Any) -> None:
         """Encode and write one item; an invalid one is counted (:attr:`invalid`) and skipped.
@@ -117,14 +170,21 @@ class McapSink:
             self._writer.add_metadata(*payload)
             return
         try:
-            messages = self.encode(kind, t, payload)
-            blobs = [(topic, _json(msg)) for topic, msg in messages]
-        except (ValueError, TypeError) as exc:
+            if kind == "primitive_set":
+                if not isinstance(payload, PrimitiveSet):
+                    raise TypeError(f"primitive_set must be a PrimitiveSet, got {type(payload).__name__}")
+                self._prims = payload
+                return
+            blobs = self.encode(kind, t, payload)
+            if kind == "world":
+                text = yaml.safe_dump(S.to_jsonable(payload), sort_keys=False)
+                self._writer.add_metadata("world", {"yaml": text})
+        except (ValueError, TypeError, KeyError, IndexError) as exc:
             self.invalid += 1
             if self._on_invalid is not None:
-                self._on_invalid(kind, str(exc))
+                self._on_invalid(kind, f"{type(exc).__name__}: {exc}")
             return
-        t_ns = S.to_ns(t)
+        t_ns = self.wall_ns(t)
         for topic, data in blobs:
             self._writer.add_message(
                 self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq
@@ -141,8 +201,8 @@ class McapSink:
         self, t_stop: float, reason: str, summary: Mapping[str, Any], drops: Mapping[str, int]
     ) -> None:
         """Write the stop message, the index and the footer; flush and close the file."""
-        t_ns = S.to_ns(t_stop)
-        data = _json(S.encode_stop(t_stop, reason, summary, drops))
+        t_ns = self.wall_ns(t_stop)
+        data = S.encode_stop(t_stop, reason, summary, drops)
         self._writer.add_message(self._channels["/flight/stop"], log_time=t_ns, data=data, publish_time=t_ns)
         self._writer.finish()
         self._file.flush()
