@@ -1,4 +1,8 @@
-"""Run several training configurations in parallel processes, then evaluate each final model.
+"""Run several training configurations in a process pool, then evaluate each final model.
+
+The dependency-free sweep (and the baseline of ``benchmarks/bench_sweep.py``); ``quadnav-sim sweep``
+runs sweeps on Ray Tune instead (sim_harness.rl.tune_sweep: search spaces, early stopping, failed
+trials recorded, resume, clusters).
 
 ``python -m sim_harness.rl.sweep --out DIR --jobs 14 --trials 10 --spec NAME:key=value,key=value ...``
 Each spec is a :class:`TrainConfig` override (``name`` = NAME; tuples as ``1+2+3``; several seeds as
@@ -16,9 +20,13 @@ import sys
 import time
 import typing
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["main", "parse_spec", "run_job"]
+if TYPE_CHECKING:
+    from sim_harness.rl.config import TrainConfig
+    from sim_harness.rl.train import TrainResult
+
+__all__ = ["evaluate_run", "main", "parse_spec", "run_job"]
 
 
 def parse_spec(spec: str) -> list[dict[str, Any]]:
@@ -50,20 +58,25 @@ def parse_spec(spec: str) -> list[dict[str, Any]]:
 def run_job(args: tuple[dict[str, Any], str, int]) -> dict[str, Any]:
     """Train one configuration, evaluate its final model; returns a JSON-ready record."""
     overrides, out_dir, trials = args
-    import numba
-    import torch
-
-    torch.set_num_threads(1)
-    numba.set_num_threads(1)
-    from quadnav_onboard.policy import Policy
     from sim_harness.rl.config import load_train_config
-    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn, summarize
+    from sim_harness.rl.threads import limit_threads
     from sim_harness.rl.train import train
-    from sim_harness.world import TEST_WORLD_IDS, TRAIN_WORLD_IDS, load_world, paper_world_path
 
+    limit_threads(1, 1)
     cfg = load_train_config({**overrides, "out_dir": out_dir}, source="sweep spec")
     t0 = time.monotonic()
     result = train(cfg, progress=False)
+    return evaluate_run(cfg, result, trials, t0)
+
+
+def evaluate_run(cfg: TrainConfig, result: TrainResult, trials: int, started: float) -> dict[str, Any]:
+    """The record of a finished run: its config and throughput, and a greedy evaluation of its
+    final model on the ten paper worlds (``trials`` per world, seed 1000) by part (train worlds,
+    held-out, all). ``started``: ``time.monotonic()`` when the job began."""
+    from quadnav_onboard.policy import Policy
+    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn, summarize
+    from sim_harness.world import TEST_WORLD_IDS, TRAIN_WORLD_IDS, load_world, paper_world_path
+
     policy = Policy.from_path(result.model_path)
     worlds = [load_world(paper_world_path(i)) for i in range(1, 11)]
     rows = evaluate(
@@ -80,7 +93,7 @@ def run_job(args: tuple[dict[str, Any], str, int]) -> dict[str, Any]:
         "train_wall_s": round(result.wall_s, 1),
         "env_steps_per_s": round(result.env_steps_per_s, 1),
         "updates_per_s": round(result.updates_per_s, 1),
-        "total_wall_s": round(time.monotonic() - t0, 1),
+        "total_wall_s": round(time.monotonic() - started, 1),
         "eval_trials": trials,
         "eval_all": summarize(rows),
         "eval_train_worlds": summarize([r for r in rows if r.world in names_train]),

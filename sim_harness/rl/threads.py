@@ -10,11 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 
-import structlog
-
 __all__ = ["ThreadCounts", "limit_threads"]
 
-log = structlog.get_logger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,5 +37,4 @@ def limit_threads(torch_threads: int = 1, numba_threads: int = 1) -> ThreadCount
     if numba_threads >= 1:
         numba.set_num_threads(min(numba_threads, numba.config.NUMBA_NUM_THREADS))
     counts = ThreadCounts(torch=torch.get_num_threads(), numba=numba.get_num_threads())
-    log.debug("threads", torch=counts.torch, numba=counts.numba)
     return counts
