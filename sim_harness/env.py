@@ -12,7 +12,11 @@ deviation past ``max_deviation_m`` ("deviation"), goal reached ("goal": within `
 the goal or progress >= path length), step limit ("timeout", a truncation).
 
 :class:`VecQuadNavEnv` steps N environments at once (numpy, auto-reset optional) and is what
-training and evaluation use; :class:`QuadNavEnv` is the single-env Gymnasium view of it.
+training and evaluation use; :class:`QuadNavEnv` is the single-env Gymnasium view of it and
+:class:`QuadNavVectorEnv` the Gymnasium 1.x ``VectorEnv`` one (its autoreset modes). Importing this
+module registers ``quadnav/QuadNav-v0``: ``gymnasium.make("quadnav/QuadNav-v0", world=1)`` and
+``gymnasium.make_vec("quadnav/QuadNav-v0", num_envs=16, world=[1, 2, 3])`` (or, without importing it
+first, ``gymnasium.make("sim_harness.env:quadnav/QuadNav-v0", ...)``).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Any
 
 import gymnasium as gym
@@ -37,9 +42,22 @@ from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_at_scale, s
 from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_inputs
-from sim_harness.world import World
+from sim_harness.world import World, load_world, paper_world_path
 
-__all__ = ["OUTCOMES", "REFERENCE_SCALE_M", "EnvConfig", "QuadNavEnv", "VecQuadNavEnv", "at_primitive_scale"]
+__all__ = [
+    "ENV_ID",
+    "OUTCOMES",
+    "REFERENCE_SCALE_M",
+    "EnvConfig",
+    "QuadNavEnv",
+    "QuadNavVectorEnv",
+    "VecQuadNavEnv",
+    "at_primitive_scale",
+    "make_env",
+    "make_vector_env",
+    "observation_space",
+    "rel_pos_bound_m",
+]
 
 OUTCOMES = ("goal", "crash", "deviation", "timeout")
 """Why an episode ends; ``None`` while it runs."""
@@ -333,10 +351,39 @@ class VecQuadNavEnv:
         return self.depth, self.rel, rew, terminated, truncated, info
 
 
+def rel_pos_bound_m(worlds: Sequence[World], config: EnvConfig) -> float:
+    """A bound (m) on every component of the position input in ``worlds``.
+
+    The setpoint and the quad's closest path point both lie on the path, so they are at most the
+    largest distance between two of its waypoints apart; the quad is within the deviation limit of
+    the path (or its start offset), plus at most one primitive's travel at the speed limit on the
+    step that ends an episode. 1 m of margin on top."""
+    spread = 0.0
+    for w in worlds:
+        wp = np.asarray(w.path.waypoints_m, dtype=np.float64)
+        spread = max(spread, float(np.linalg.norm(wp[:, None] - wp[None], axis=-1).max()))
+    off_path = max(config.reward.max_deviation_m, math.sqrt(3.0) * config.start_jitter_m)
+    step = config.quad.max_speed_m_s * config.primitives.duration_s
+    return spread + off_path + step + 1.0
+
+
+def observation_space(worlds: Sequence[World], config: EnvConfig) -> gym.spaces.Dict:
+    """One env's observation: ``depth`` in [0, 1], ``rel_pos`` within :func:`rel_pos_bound_m`."""
+    kd, kp = config.depth_history, config.position_history
+    bound = rel_pos_bound_m(worlds, config)
+    return gym.spaces.Dict(
+        {
+            "depth": gym.spaces.Box(0.0, 1.0, (kd, 32, 32), dtype=np.float32),
+            "rel_pos": gym.spaces.Box(-bound, bound, (kp, 3), dtype=np.float32),
+        }
+    )
+
+
 class QuadNavEnv(gym.Env):
     """Single-episode Gymnasium view of :class:`VecQuadNavEnv`.
 
-    Observation ``Dict(depth=Box(0, 1, (k_d, 32, 32)), rel_pos=Box((k_p, 3)))``, action
+    Observation ``Dict(depth=Box(0, 1, (k_d, 32, 32)), rel_pos=Box(-b, b, (k_p, 3)))`` with ``b``
+    from :func:`rel_pos_bound_m` (m), action
     ``Discrete(n_actions)``; ``info``: ``progress_m`` (navigation distance), ``time_s``,
     ``deviation_m``, ``outcome`` and ``world_index``. ``reset(seed=s)`` re-seeds the Generator, so
     a seeded episode with the same actions is reproducible bit for bit.
@@ -349,13 +396,7 @@ class QuadNavEnv(gym.Env):
         self.config = config
         self._worlds = list(worlds)
         self._vec = VecQuadNavEnv(self._worlds, 1, seed, config, autoreset=False)
-        kd, kp = config.depth_history, config.position_history
-        self.observation_space = gym.spaces.Dict(
-            {
-                "depth": gym.spaces.Box(0.0, 1.0, (kd, 32, 32), dtype=np.float32),
-                "rel_pos": gym.spaces.Box(-np.inf, np.inf, (kp, 3), dtype=np.float32),
-            }
-        )
+        self.observation_space = observation_space(self._worlds, config)
         self.action_space = gym.spaces.Discrete(self._vec.prims.n_actions)
 
     def _obs(self) -> dict[str, NDArray[np.float32]]:
@@ -409,3 +450,174 @@ def at_primitive_scale(
         for w in worlds
     ]
     return cfg, slowed
+
+
+class QuadNavVectorEnv(gym.vector.VectorEnv):
+    """Gymnasium 1.x ``VectorEnv`` over :class:`VecQuadNavEnv`: the same step, every env in one batch.
+
+    ``autoreset_mode`` (``metadata["autoreset_mode"]``), Gymnasium's three:
+
+    - ``NEXT_STEP`` (Gymnasium's default): an env that ends at step t returns its last observation
+      at t; at step t+1 it starts a new episode and returns the first observation, reward 0, not
+      terminated nor truncated, its action ignored.
+    - ``SAME_STEP``: it starts the new episode at t; its last observation and info are in
+      ``info["final_obs"]``/``info["final_info"]`` (masks ``_final_obs``/``_final_info``), as
+      :class:`VecQuadNavEnv` itself does with ``autoreset``.
+    - ``DISABLED``: a finished env stays as it ended until ``reset(options={"reset_mask": mask})``.
+
+    Infos are Gymnasium's vector infos: ``progress_m``, ``time_s``, ``deviation_m``, ``outcome``,
+    ``world_index``, each with its ``_key`` mask. One seeded Generator draws for every env:
+    ``reset(seed=s)`` re-seeds it (a list of seeds: its first).
+    """
+
+    def __init__(
+        self,
+        worlds: Sequence[World],
+        num_envs: int,
+        config: EnvConfig = EnvConfig(),
+        seed: int = 0,
+        autoreset_mode: gym.vector.AutoresetMode | str = gym.vector.AutoresetMode.NEXT_STEP,
+    ) -> None:
+        self._vec = VecQuadNavEnv(list(worlds), num_envs, seed, config, autoreset=False)
+        self.num_envs = int(num_envs)
+        self.autoreset_mode = gym.vector.AutoresetMode(autoreset_mode)
+        self.metadata = {"autoreset_mode": self.autoreset_mode, "render_modes": []}
+        self.render_mode = None
+        self.single_observation_space = observation_space(self._vec.worlds, config)
+        self.single_action_space = gym.spaces.Discrete(self._vec.prims.n_actions)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self._pending = np.zeros(self.num_envs, dtype=bool)
+        """NEXT_STEP: envs that ended at the last step and start anew at the next."""
+
+    @property
+    def unwrapped_vec(self) -> VecQuadNavEnv:
+        """The numpy batch stepped underneath."""
+        return self._vec
+
+    def _obs(self) -> dict[str, NDArray[np.float32]]:
+        return {"depth": self._vec.depth.copy(), "rel_pos": self._vec.rel.copy()}
+
+    def _infos(self, info: dict[str, Any] | None) -> dict[str, Any]:
+        v, n = self._vec, self.num_envs
+        if info is None:  # after a reset
+            info = {"progress_m": np.zeros(n), "time_s": np.zeros(n), "deviation_m": np.zeros(n),
+                    "outcome": np.full(n, None, dtype=object), "world_index": v.world_idx.copy()}
+        out: dict[str, Any] = {}
+        for key in ("progress_m", "time_s", "deviation_m", "outcome", "world_index"):
+            out[key] = np.asarray(info[key]).copy()
+            out[f"_{key}"] = np.ones(n, dtype=bool)
+        return out
+
+    def reset(
+        self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, NDArray[np.float32]], dict[str, Any]]:
+        if seed is not None:
+            self._vec.rng = np.random.default_rng(seed[0] if isinstance(seed, list) else seed)
+        mask = None if not options or options.get("reset_mask") is None else np.asarray(options["reset_mask"])
+        self._vec.reset(mask)
+        self._pending[slice(None) if mask is None else mask] = False
+        return self._obs(), self._infos(None)
+
+    def step(
+        self, actions: NDArray
+    ) -> tuple[dict[str, NDArray[np.float32]], NDArray, NDArray, NDArray, dict[str, Any]]:
+        v, n = self._vec, self.num_envs
+        restart = self._pending.copy()
+        if (~v.done).any():
+            _, _, rew, term, trunc, info = v.step(actions)
+        else:  # every env finished: nothing steps
+            rew, term, trunc = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+            info = self._infos(None)
+        infos = self._infos(info)
+        ended = term | trunc
+        mode = self.autoreset_mode
+        if mode == gym.vector.AutoresetMode.NEXT_STEP:
+            if restart.any():
+                v.reset(restart)
+                for key in ("progress_m", "time_s", "deviation_m"):
+                    infos[key][restart] = 0.0
+                infos["world_index"][restart] = v.world_idx[restart]
+            self._pending = ended.copy()
+        elif mode == gym.vector.AutoresetMode.SAME_STEP and ended.any():
+            final = self._obs()
+            final_obs = np.full(n, None, dtype=object)
+            final_info = np.full(n, None, dtype=object)
+            for i in np.flatnonzero(ended):
+                final_obs[i] = {k: a[i] for k, a in final.items()}
+                final_info[i] = {k: infos[k][i] for k in ("progress_m", "time_s", "deviation_m", "outcome")}
+            v.reset(ended)
+            infos.update(final_obs=final_obs, _final_obs=ended.copy(), final_info=final_info,
+                         _final_info=ended.copy())
+        return self._obs(), rew.astype(np.float64), term.copy(), trunc.copy(), infos
+
+
+ENV_ID = "quadnav/QuadNav-v0"
+"""The Gymnasium id of the navigation task (registered when this module is imported)."""
+
+WorldSpec = World | str | Path | int
+"""A world: loaded, a world file's path, or a paper world id (1-10)."""
+
+
+def _worlds(world: WorldSpec | Sequence[WorldSpec] | None) -> list[World]:
+    """The worlds ``world`` names (default: the paper's training worlds 1-7)."""
+    if world is None:
+        world = list(range(1, 8))
+    items = [world] if isinstance(world, World | str | Path | int) else list(world)
+    out = []
+    for w in items:
+        if isinstance(w, World):
+            out.append(w)
+        elif isinstance(w, int) and not isinstance(w, bool):
+            out.append(load_world(paper_world_path(w)))
+        else:
+            out.append(load_world(Path(w)))
+    if not out:
+        raise ValueError("world: at least one world")
+    return out
+
+
+def _limit_sim_threads(sim_threads: int | None) -> None:
+    if sim_threads:
+        import numba
+
+        numba.set_num_threads(min(sim_threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def make_env(
+    world: WorldSpec | Sequence[WorldSpec] | None = None,
+    config: EnvConfig = EnvConfig(),
+    seed: int = 0,
+    sim_threads: int | None = 1,
+) -> QuadNavEnv:
+    """``gymnasium.make("quadnav/QuadNav-v0", world=...)``: one env over ``world`` (a world, a world
+    file, a paper world id, or a list of them; default: paper worlds 1-7).
+
+    ``sim_threads``: numba threads of the env's kernels (None leaves numba's setting). One: a single
+    env's kernels are too small to share, and a learner in the same process needs the other cores
+    (sim_harness.rl.threads)."""
+    _limit_sim_threads(sim_threads)
+    return QuadNavEnv(_worlds(world), config, seed)
+
+
+def make_vector_env(
+    num_envs: int,
+    world: WorldSpec | Sequence[WorldSpec] | None = None,
+    config: EnvConfig = EnvConfig(),
+    seed: int = 0,
+    autoreset_mode: gym.vector.AutoresetMode | str = gym.vector.AutoresetMode.NEXT_STEP,
+    sim_threads: int | None = 1,
+) -> QuadNavVectorEnv:
+    """``gymnasium.make_vec("quadnav/QuadNav-v0", num_envs=N, world=...)``: a
+    :class:`QuadNavVectorEnv` (arguments as :func:`make_env`)."""
+    _limit_sim_threads(sim_threads)
+    return QuadNavVectorEnv(_worlds(world), num_envs, config, seed, autoreset_mode)
+
+
+if ENV_ID not in gym.registry:
+    gym.register(
+        id=ENV_ID,
+        entry_point="sim_harness.env:make_env",
+        vector_entry_point="sim_harness.env:make_vector_env",
+        max_episode_steps=None,  # the env truncates at EnvConfig.max_steps itself
+    )

@@ -32,9 +32,11 @@ def limit_threads(torch_threads: int = 1, numba_threads: int = 1) -> ThreadCount
     import numba
     import torch
 
-    if torch_threads >= 1:
-        torch.set_num_threads(torch_threads)
+    # both, always: numba's OpenMP layer sets OpenMP's thread count (torch's too) to numba's own at
+    # its parallel launches, so torch held to one thread while numba keeps all cores does not stay
+    # so (measured: benchmarks/bench_sb3.py reports torch's count after training)
     if numba_threads >= 1:
         numba.set_num_threads(min(numba_threads, numba.config.NUMBA_NUM_THREADS))
-    counts = ThreadCounts(torch=torch.get_num_threads(), numba=numba.get_num_threads())
-    return counts
+    if torch_threads >= 1:
+        torch.set_num_threads(torch_threads)
+    return ThreadCounts(torch=torch.get_num_threads(), numba=numba.get_num_threads())
