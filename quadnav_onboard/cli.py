@@ -159,6 +159,7 @@ def _fly(
     import torch
 
     from quadnav_onboard.daemon.app import FlightDaemon
+    from quadnav_onboard.record.flight import describe_flight
 
     torch.set_num_threads(1)
     meta = {
@@ -167,6 +168,7 @@ def _fly(
         "model_sha256": policy.checkpoint.sha256,
         "dry_run": str(bool(args.dry_run)),
     }
+    world = None  # the dry run's world (a world-file mapping), drawn in the record's 3-D scene
     with contextlib.ExitStack() as stack:
         if args.dry_run:
             from quadnav_onboard.daemon.dryrun import DryRun, ProcessDryRun
@@ -176,6 +178,9 @@ def _fly(
             cfg = sim.cfg
             parts = sim.parts()
             meta["world"] = str(sim.world_path)
+            from sim_harness.world import world_to_mapping
+
+            world = world_to_mapping(sim.world)
         else:
             from quadnav_onboard.daemon.hardware import hardware_parts
 
@@ -185,6 +190,7 @@ def _fly(
         if recorder is not None:
             with contextlib.suppress(Exception):
                 recorder.rough_path(time.monotonic(), parts["path"].waypoints_m)
+                describe_flight(recorder, cfg, policy, world)
         daemon = FlightDaemon(
             cfg,
             policy=policy,

@@ -120,6 +120,9 @@ class VehicleState:
     until reported."""
     system_status: int | None = None
     """HEARTBEAT system_status (MAV_STATE) of the autopilot; None until reported."""
+    px4_time: tuple[float, int, int] | None = None
+    """Newest SYSTEM_TIME: (arrival, monotonic s; PX4's time since boot, us; PX4's UTC, us, 0 when
+    unknown); None until reported. Lines the flight record up with PX4's ULog."""
 
 
 @runtime_checkable
@@ -300,6 +303,7 @@ class MavsdkVehicle:
             tg.create_task(self._watch_landed())
             tg.create_task(self._watch_attitude())
             tg.create_task(self._watch_heartbeat())
+            tg.create_task(self._watch_system_time())
             if self._guard is not None:
                 tg.create_task(self._watch_source())
 
@@ -349,6 +353,17 @@ class MavsdkVehicle:
                 continue
             with contextlib.suppress(ValueError, KeyError, TypeError):
                 self.state.system_status = int(json.loads(msg.fields_json)["system_status"])
+
+    async def _watch_system_time(self) -> None:
+        """PX4's clock (SYSTEM_TIME, ~1 Hz) for the flight record; a failure only logs."""
+        try:
+            async for msg in self._direct.subscribe_message("SYSTEM_TIME"):
+                t = time.monotonic()
+                with contextlib.suppress(ValueError, KeyError, TypeError):
+                    f = json.loads(msg.fields_json)
+                    self.state.px4_time = (t, int(f["time_boot_ms"]) * 1000, int(f["time_unix_usec"]))
+        except Exception as exc:  # the record's PX4 clock is not worth the telemetry task group
+            log.warning("px4_time_unavailable", error=f"{type(exc).__name__}: {exc}")
 
     async def _watch_source(self) -> None:
         """Copy the guard's verdict on the link's source into the state (checked in flight)."""

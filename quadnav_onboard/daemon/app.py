@@ -489,6 +489,7 @@ class FlightDaemon(StopLadder):
                 "frame_age_s": frame_age_s,
                 "allowed": decision.allowed,
                 "clearance_m": decision.clearance_m,
+                "prim": prim,
             }
             log.info(
                 "step",

@@ -22,6 +22,7 @@ from quadnav_onboard.daemon.mission import step_inputs
 from quadnav_onboard.daemon.summary import FlightSummary
 from quadnav_onboard.daemon.supervisor import Response, StopReason, response_for
 from quadnav_onboard.logs import get_logger
+from quadnav_onboard.record.flight import record_px4_time
 from quadnav_onboard.reward import reward
 from quadnav_onboard.vehicle import VehicleError
 
@@ -72,6 +73,7 @@ class StopLadder(Loops):
             latency_ms=self.decision_latency_last_s * 1e3,
             shield_allowed=p.get("allowed"),
             shield_clearance_m=p.get("clearance_m"),
+            primitive=p.get("prim"),
         )
 
     # --- stop ----------------------------------------------------------------------------------
@@ -198,5 +200,6 @@ class StopLadder(Loops):
             stats=self.stats,
             model_sha256=self.policy.checkpoint.sha256,
         )
+        record_px4_time(self.recorder, self.vehicle.state)
         self.recorder.close(reason.value, summary.to_dict())
         return summary

@@ -305,7 +305,11 @@ def _quat(q: dict[str, Any] | None) -> list[float]:
 def _dispatch(
     rec: FlightRecord, topic: str, msg: dict[str, Any], log_time_ns: int, acc: _Accumulator
 ) -> None:
-    """One version-2 message (decoded by its schema) into ``rec``."""
+    """One version-2 message (decoded by its schema) into ``rec``; its time is its own time stamp
+    (a log time may be later: see :mod:`sink`)."""
+    stamp = msg.get("timestamp")
+    if isinstance(stamp, dict):
+        log_time_ns = int(stamp["seconds"]) * 1_000_000_000 + int(stamp["nanos"])
     t = (log_time_ns - rec.unix_minus_mono_ns) / 1e9
     if topic == "/planner/step":
         rec.steps.append(msg)

@@ -12,8 +12,10 @@ right, y down, z forward). The 3-D scene's entities are in ``world``.
 
 Time: every log time, and every Foxglove ``timestamp``, is wall-clock (UTC) ns: the recording
 process's ``time.monotonic()`` plus one offset taken when the record was opened (metadata
-``recorder.unix_minus_mono_ns``), so log times keep the monotonic clock's order and spacing.
-The quadnav JSON messages also carry ``t_mono_s``, the monotonic time itself.
+``recorder.unix_minus_mono_ns``), so log times keep the monotonic clock's order and spacing. A
+channel's log times never go back: a datum its caller stamped before the channel's previous
+message (events) is logged at that message's time and keeps its own in ``timestamp``. The quadnav
+JSON messages also carry ``t_mono_s``, the monotonic time itself.
 
 Everything here is pure: encoders take values and return the message's bytes.
 """

@@ -59,6 +59,7 @@ class McapSink:
         self._seq = 0
         self._offset_ns = round(float(unix_minus_mono_s) * 1e9)
         self._prims: PrimitiveSet | None = None
+        self._last_ns: dict[str, int] = {}
         self._writer = Writer(file, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_crcs=True)
         self._writer.start(profile="", library=f"quadnav {__version__}")
         schema_ids: dict[str, int] = {}
@@ -186,8 +187,13 @@ class McapSink:
             return
         t_ns = self.wall_ns(t)
         for topic, data in blobs:
+            # a channel's log times never go back: a datum stamped before the channel's previous
+            # message (an event timed by its caller) is logged at that message's time; its own
+            # time stays in the message (``timestamp``, ``t_mono_s``)
+            log_ns = max(t_ns, self._last_ns.get(topic, 0))
+            self._last_ns[topic] = log_ns
             self._writer.add_message(
-                self._channels[topic], log_time=t_ns, data=data, publish_time=t_ns, sequence=self._seq
+                self._channels[topic], log_time=log_ns, data=data, publish_time=t_ns, sequence=self._seq
             )
             self._seq += 1
 
@@ -201,7 +207,7 @@ class McapSink:
         self, t_stop: float, reason: str, summary: Mapping[str, Any], drops: Mapping[str, int]
     ) -> None:
         """Write the stop message, the index and the footer; flush and close the file."""
-        t_ns = self.wall_ns(t_stop)
+        t_ns = max(self.wall_ns(t_stop), self._last_ns.get("/flight/stop", 0))
         data = S.encode_stop(t_stop, reason, summary, drops)
         self._writer.add_message(self._channels["/flight/stop"], log_time=t_ns, data=data, publish_time=t_ns)
         self._writer.finish()

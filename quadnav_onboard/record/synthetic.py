@@ -9,6 +9,7 @@ box growing as it approaches. Nothing here is a simulator; it only produces plau
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,16 @@ SYNTHETIC_WORLD: dict[str, Any] = {
 
 _FWD, _LEFT, _RIGHT = (DEFAULT_DIRECTIONS.index(d) for d in ((1, 0, 0), (1, 1, 0), (1, -1, 0)))
 _W, _H, _HFOV = 424, 240, math.radians(87.0)
+
+
+@dataclass(frozen=True)
+class _Commanded:
+    """A commanded primitive as the recorder draws it (the daemon's ActivePrimitive has these)."""
+
+    primitives: PrimitiveSet
+    start_world_m: np.ndarray
+    start_vel_world_m_s: np.ndarray
+    yaw_rad: float
 
 
 def _policy(k: int) -> int:
@@ -123,6 +134,9 @@ def write_synthetic_flight(
         image_queue_size=max(8, n_depth),
     )
     rec.rough_path(t0_mono_s, wps)
+    rec.camera(t0_mono_s, width_px=_W, height_px=_H, hfov_deg=math.degrees(_HFOV), vfov_deg=58.0)
+    rec.geofence(t0_mono_s, (-5.0, -10.0, 0.0), (35.0, 10.0, 6.0))
+    rec.world(t0_mono_s, SYNTHETIC_WORLD)
     rec.vehicle(t0_mono_s, True, "OFFBOARD", {"local_position_ok": True, "battery_v": 16.4})
     rec.event(t0_mono_s, "mission_start", "mission started", level="info")
     for i, t in enumerate(ts_a):
@@ -133,6 +147,7 @@ def write_synthetic_flight(
         rec.depth(t0_mono_s + t, _depth_frame(actual(t), rng))
 
     total, best = 0.0, 0.0
+    start, v0 = rough.start_m.copy(), np.zeros(3)
     for k, a in enumerate(actions):
         pos, pos_next = actual(k), actual(k + 1)
         sp, sp_next = rough.setpoint_at(k), rough.setpoint_at(k + 1)
@@ -160,7 +175,9 @@ def write_synthetic_flight(
             progress_m=progress,
             deviation_m=float(rough.deviation_m(pos)),
             latency_ms=float(18.0 + rng.gamma(2.0, 2.0)),
+            primitive=_Commanded(prims, start, v0, 0.0),
         )
+        start, v0 = start + prims.end_displacement_m(a), prims.end_velocity_m_s(a)
     reached = crash_at_step is None and best >= rough.length_m - 1.0
     reason = "crash" if crash_at_step is not None else ("goal_reached" if reached else "step_limit")
     if crash_at_step is not None:
