@@ -33,11 +33,13 @@ GOALS = {"decision_p99_ms": 5.0, "setpoint_interval_p99_ms": 75.0, "daemon_cpu_p
 
 
 def _label(cmdline: str) -> str:
+    """A child's name: the module it runs (``python -m M``), else its executable."""
+    args = cmdline.split("\0")
+    if "-m" in args[:-1]:
+        return args[args.index("-m") + 1]
     if "resource_tracker" in cmdline:
         return "resource_tracker"
-    if "multiprocessing" in cmdline:
-        return "record_writer"
-    return Path(cmdline.split("\0")[0]).name
+    return Path(args[0]).name
 
 
 class ChildSampler:
