@@ -172,8 +172,10 @@ def _config() -> FlightConfig:
     )
 
 
-async def _fly(world: Path, model: Path, fault: Callable[[ProcessDryRun], None] | None) -> tuple[Any, Any]:
-    with ProcessDryRun(_config(), world, emulator={"heartbeat_hz": 10.0}) as sim:
+async def _fly(
+    world: Path, model: Path, fault: Callable[[ProcessDryRun], None] | None, cfg: FlightConfig | None = None
+) -> tuple[Any, Any]:
+    with ProcessDryRun(cfg or _config(), world, emulator={"heartbeat_hz": 10.0}) as sim:
         daemon = FlightDaemon(sim.cfg, policy=Policy.from_path(model), **sim.parts())
 
         async def inject() -> None:
@@ -194,6 +196,18 @@ async def test_dry_run_against_the_vehicle_side_reaches_the_goal(world: Path, mo
     s, _ = await _fly(world, model, None)
     assert s.stop_reason == "goal_reached" and s.exit_code == 0, s
     assert s.startup["kernels_compiled_in_flight"] == {} and s.startup["warmup_s"] is not None
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+async def test_dry_run_on_px4s_own_estimate_starts_no_mocap(world: Path, model: Path) -> None:
+    import dataclasses
+
+    base = _config()
+    cfg = dataclasses.replace(base, odometry=dataclasses.replace(base.odometry, kind="px4"))
+    s, sim = await _fly(world, model, None, cfg)
+    assert set(sim.side.parts) == {"vehicle", "camera"} and sim.cfg.odometry.kind == "px4"
+    assert s.stop_reason == "goal_reached", s
 
 
 @pytest.mark.e2e
