@@ -5,24 +5,83 @@ Replays a flight's data rates in real time (D435 depth 424x240 at 30 fps, odomet
 setpoints 50 Hz, vehicle state 10 Hz, one decision per second with its 32x32 input) into
 :class:`FlightRecorder` and into :class:`NullRecorder`, and reports per call: the time spent in
 the call (what the control loop pays) and the lateness of each scheduled call (what the writer's
-GIL use costs the loop). Prints a table and writes JSON.
+GIL use costs the loop). Then, apart from the replay, the writer's own cost per depth frame and
+per step (encode and write into the MCAP file, CPU µs, as the writer process pays it) and the
+record's size per flight minute. Prints a table and writes JSON.
 
-    .venv/bin/python benchmarks/bench_recorder.py --seconds 10 [--writer process|thread] --out OUT.json
+    .venv/bin/python benchmarks/bench_recorder.py --seconds 10 [--writer process|thread] \
+        [--depth random|scene] --out OUT.json
+
+``--depth random`` (default) replays incompressible frames (uniform 0.3-9 m), ``scene`` plausible
+ones (``quadnav_onboard.record.synthetic``: open space, floor, a box). The script runs against an
+older version of the package too (``PYTHONPATH=<a checkout of it>``), leaving out what that version
+does not record (the step's primitive, the camera), so figures before and after a change come from
+this one command.
 """
 
 from __future__ import annotations
 
 import argparse
 import heapq
+import inspect
 import json
+import resource
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from quadnav_onboard.primitives import PrimitiveSet
 from quadnav_onboard.record import FlightRecorder, NullRecorder, read_record
+from quadnav_onboard.record.sink import McapSink
+from quadnav_onboard.record.synthetic import _depth_frame
+
+DRAWS_PRIMITIVES = "primitive" in inspect.signature(FlightRecorder.step).parameters
+"""This version of the recorder takes the step's primitive (and the camera)."""
+
+
+@dataclass(frozen=True)
+class Commanded:
+    """A commanded primitive, as the daemon's ActivePrimitive hands it to the recorder."""
+
+    primitives: PrimitiveSet
+    start_world_m: np.ndarray
+    start_vel_world_m_s: np.ndarray
+    yaw_rad: float
+
+
+PRIMS = PrimitiveSet()
+
+
+def _depth(kind: str, rng: np.random.Generator) -> np.ndarray:
+    if kind == "scene":
+        return _depth_frame(np.array([6.0, 0.0, 2.0]), rng)
+    return rng.integers(300, 9000, size=(240, 424), dtype=np.uint16)
+
+
+def _decision(step: int, t_rel: float, q: np.ndarray) -> dict[str, Any]:
+    """One step's recorder arguments (with its primitive when this recorder draws them)."""
+    d: dict[str, Any] = dict(
+        step=step,
+        action=4,
+        q_values=q,
+        rel_pos_body_m=[1, 0, 0],
+        moving_setpoint_world_m=[t_rel, 0, 2],
+        pos_world_m=[t_rel, 0, 2],
+        reward=0.5,
+        reward_terms={"d_now_m": 1.0},
+        progress_m=t_rel,
+        deviation_m=0.1,
+        latency_ms=20.0,
+        shield_allowed=np.arange(18) % 4 != 0,
+        shield_clearance_m=np.linspace(0.2, 1.5, 18),
+    )
+    if DRAWS_PRIMITIVES:
+        d["primitive"] = Commanded(PRIMS, np.array([t_rel, 0.0, 2.0]), np.array([1.0, 0.0, 0.0]), 0.0)
+    return d
 
 RATES_HZ = {"depth": 30.0, "odometry": 120.0, "setpoint": 50.0, "vehicle": 10.0, "step": 1.0}
 
@@ -35,16 +94,19 @@ def _schedule(seconds: float) -> list[tuple[float, str]]:
     return [heapq.heappop(events) for _ in range(len(events))]
 
 
-def run(recorder: Any, seconds: float, seed: int = 0) -> dict[str, dict[str, float]]:
+def run(
+    recorder: Any, seconds: float, seed: int = 0, depth_kind: str = "random"
+) -> dict[str, dict[str, float]]:
     """Feed ``recorder`` for ``seconds`` of real time; return per-kind call/lateness stats (µs)."""
     rng = np.random.default_rng(seed)
-    depth = rng.integers(300, 9000, size=(240, 424), dtype=np.uint16)
+    depth = _depth(depth_kind, rng)
     inp = rng.random((32, 32), dtype=np.float32)
     q = rng.normal(size=18)
     call_us: dict[str, list[float]] = {k: [] for k in RATES_HZ}
     late_us: list[float] = []
     t_start = time.monotonic() + 0.05
     step = 0
+    decision = _decision(step, 0.0, q)  # built outside the timed call, as the daemon does
     for t_rel, kind in _schedule(seconds):
         target = t_start + t_rel
         while (now := time.monotonic()) < target:
@@ -62,22 +124,11 @@ def run(recorder: Any, seconds: float, seed: int = 0) -> dict[str, dict[str, flo
             recorder.vehicle(t, True, "OFFBOARD", {"local_position_ok": True})
         else:
             recorder.network_input(t, step, inp)
-            recorder.step(
-                t,
-                step=step,
-                action=4,
-                q_values=q,
-                rel_pos_body_m=[1, 0, 0],
-                moving_setpoint_world_m=[t_rel, 0, 2],
-                pos_world_m=[t_rel, 0, 2],
-                reward=0.5,
-                reward_terms={"d_now_m": 1.0},
-                progress_m=t_rel,
-                deviation_m=0.1,
-                latency_ms=20.0,
-            )
-            step += 1
+            recorder.step(t, **decision)
         call_us[kind].append((time.perf_counter() - c0) * 1e6)
+        if kind == "step":
+            step += 1
+            decision = _decision(step, t_rel + 1.0, q)
 
     def stats(v: list[float]) -> dict[str, float]:
         a = np.asarray(v)
@@ -93,6 +144,55 @@ def run(recorder: Any, seconds: float, seed: int = 0) -> dict[str, dict[str, flo
     return out
 
 
+def writer_cost(depth_kind: str, n_depth: int = 200, n_steps: int = 1000) -> dict[str, dict[str, float]]:
+    """The writer's CPU (µs) per depth frame and per step (its messages encoded and written into
+    an MCAP file, chunks compressed), and bytes written per item."""
+    rng = np.random.default_rng(1)
+    depth = _depth(depth_kind, rng)
+    q = rng.normal(size=18)
+    options = {
+        "metadata": {"bench": "1"},
+        "depth_decimation": 1,
+        "unix_minus_mono_s": time.time() - time.monotonic(),
+        "chunk_size": 256 * 1024,
+        "fsync": False,
+        "flush_interval_s": 1.0,
+    }
+    out = {}
+    kinds = [("depth", n_depth, True), ("step", n_steps, True)]
+    if DRAWS_PRIMITIVES:  # the step record alone, as the previous format recorded it
+        kinds.append(("step", n_steps, False))
+    for kind, n, drawn in kinds:
+        with tempfile.TemporaryFile() as f:
+            sink = McapSink.from_options(f, options)
+            if DRAWS_PRIMITIVES:
+                sink.write("primitive_set", 1.0, PRIMS)
+            start = f.tell()
+            items = [
+                (kind, 1.0 + i * 0.01, depth if kind == "depth" else _decision(i, float(i), q))
+                for i in range(n)
+            ]
+            if kind == "step":  # the recorder's own copy of the arguments, as the writer receives it
+                items = [(k, t, _as_queued(d, drawn)) for k, t, d in items]
+            c0 = time.process_time()
+            for item in items:
+                sink.write(*item)
+            sink.flush()
+            cpu = time.process_time() - c0
+            name = kind if drawn else "step_record_alone"
+            out[name] = {"n": n, "cpu_us": cpu / n * 1e6, "bytes": (f.tell() - start) / n}
+    return out
+
+
+def _as_queued(d: dict[str, Any], drawn: bool = True) -> dict[str, Any]:
+    """The step dict the recorder queues (its primitive reduced to start, velocity and heading)."""
+    q = dict(d)
+    prim = q.pop("primitive", None) if drawn else None
+    if DRAWS_PRIMITIVES:
+        q["primitive"] = (prim.start_world_m, prim.start_vel_world_m_s, prim.yaw_rad) if prim else None
+    return q
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seconds", type=float, default=10.0, help="real time to replay per recorder")
@@ -104,23 +204,37 @@ def main() -> int:
         default="process",
         help="the recorder's writer (default: the daemon's)",
     )
+    p.add_argument("--depth", choices=("random", "scene"), default="random", help="depth frames replayed")
     args = p.parse_args()
     results: dict[str, Any] = {
         "seconds": args.seconds,
         "rates_hz": RATES_HZ,
         "decimation": args.decimation,
         "writer": args.writer,
+        "depth": args.depth,
+        "draws_primitives": DRAWS_PRIMITIVES,
     }
-    results["null"] = run(NullRecorder(), args.seconds)
+    c0 = time.process_time()
+    results["null"] = run(NullRecorder(), args.seconds, depth_kind=args.depth)
+    null_cpu_s = time.process_time() - c0
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "bench.mcap"
         rec = FlightRecorder(
             path, metadata={"bench": "1"}, depth_decimation=args.decimation, writer=args.writer
         )
-        results["mcap"] = run(rec, args.seconds)
+        if DRAWS_PRIMITIVES:
+            rec.camera(time.monotonic(), width_px=424, height_px=240, hfov_deg=87.0, vfov_deg=58.0)
+        c0, child0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
+        results["mcap"] = run(rec, args.seconds, depth_kind=args.depth)
         t0 = time.perf_counter()
         rec.close("operator_stop", {})
         results["close_s"] = time.perf_counter() - t0
+        child1 = resource.getrusage(resource.RUSAGE_CHILDREN)  # the writer process, waited for at close
+        results["cpu_percent_of_a_core"] = {
+            "flight_process_recorder": 100 * (time.process_time() - c0 - null_cpu_s) / args.seconds,
+            "writer_process": 100 * (child1.ru_utime + child1.ru_stime - child0.ru_utime - child0.ru_stime)
+            / args.seconds,
+        }
         results["drops"] = rec.drop_counts
         results["file_bytes"] = path.stat().st_size
         results["record_read_ok"] = read_record(path, load_depth=False).complete
@@ -132,10 +246,19 @@ def main() -> int:
             f"{b['p50_us']:8.1f} {b['p99_us']:8.1f} {b['max_us']:8.1f}"
         )
     mb_s = results["file_bytes"] / 1e6 / args.seconds
+    results["mb_per_flight_minute"] = mb_s * 60
     print(
-        f"file {results['file_bytes'] / 1e6:.1f} MB ({mb_s:.2f} MB/s), drops {results['drops']}, "
-        f"close {results['close_s']:.2f} s"
+        f"file {results['file_bytes'] / 1e6:.1f} MB ({mb_s:.2f} MB/s, {mb_s * 60:.0f} MB per flight minute), "
+        f"drops {results['drops']}, close {results['close_s']:.2f} s"
     )
+    cpu = results["cpu_percent_of_a_core"]
+    print(
+        f"CPU, % of a core: the recorder in the flight process {cpu['flight_process_recorder']:.1f} "
+        f"(FlightRecorder run minus NullRecorder run), writer process {cpu['writer_process']:.1f}"
+    )
+    results["writer_cost"] = writer_cost(args.depth)
+    for kind, c in results["writer_cost"].items():
+        print(f"writer, per {kind}: {c['cpu_us']:.0f} µs CPU, {c['bytes'] / 1e3:.1f} kB written")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=2))

@@ -37,6 +37,11 @@ __all__ = ["FlightRecord", "RecordError", "read_record"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 _READABLE_VERSIONS = ("1", str(S.FORMAT_VERSION))
+_READ = {
+    "/planner/step", "/odometry", "/setpoint", "/planner/input", "/camera/depth", "/vehicle",
+    "/vehicle/px4_time", "/events", "/planner/path", "/flight/stop",
+}
+"""Topics read into a :class:`FlightRecord` (both versions)."""
 _MAX_RECORD_BYTES = 1 << 30
 
 
@@ -225,8 +230,9 @@ def read_record(path: str | Path, *, load_depth: bool = True) -> FlightRecord:
                     break
                 rec.message_counts[ch.topic] = rec.message_counts.get(ch.topic, 0) + 1
                 decode = decoders[r.channel_id]
-                if decode is None or (ch.topic == "/camera/depth" and not load_depth):
-                    continue
+                skip = ch.topic not in _READ or (ch.topic == "/camera/depth" and not load_depth)
+                if decode is None or skip:
+                    continue  # the 3-D scene and the transforms are for Foxglove: counted, not decoded
                 if rec.format_version == 0:
                     rec.format_version = _version(path, rec)
                 msg = decode(r.data)

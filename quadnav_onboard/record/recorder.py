@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import itertools
 import json
 import os
 import pickle
@@ -54,6 +55,7 @@ from numpy.typing import ArrayLike
 
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.record.protocol import NullRecorder, Recorder
+from quadnav_onboard.record.schemas import to_jsonable
 from quadnav_onboard.record.sink import Item, McapSink
 
 __all__ = [  # NullRecorder, Recorder and RecorderError are re-exported by quadnav_onboard.record
@@ -152,7 +154,7 @@ class FlightRecorder:
         self._closed = False
         self._failed: BaseException | None = None
         self._stop: tuple[float, str, dict[str, Any]] | None = None
-        self._depth_seen = 0
+        self._depth_seen = itertools.count()  # next() is atomic: no lock for the frames not kept
         self._drops: dict[str, int] = {"depth": 0, "control": 0, "failed": 0, "invalid": 0}
         self._local_invalid = 0  # invalid items caught in this process (the rest: by a writer process)
         self._prims_sent: Any = None  # the primitive set the writer was last given
@@ -252,9 +254,7 @@ class FlightRecorder:
 
     def depth(self, t_mono_s: float, depth_mm: np.ndarray) -> None:
         """A raw depth frame (uint16 mm, (H, W), 0 = invalid); 1 in ``depth_decimation`` is kept."""
-        with self._cond:
-            n = self._depth_seen
-            self._depth_seen += 1
+        n = next(self._depth_seen)
         if self.depth_decimation == 0 or n % self.depth_decimation:
             return
         self._put("depth", t_mono_s, np.array(depth_mm, dtype=np.uint16, copy=True), image=True)
@@ -374,7 +374,7 @@ class FlightRecorder:
     def world(self, t_mono_s: float, world: Mapping[str, Any]) -> None:
         """The world flown (the sim harness's world-file mapping, ``sim_harness.world``): its
         obstacles, floor and ceiling in the 3-D scene, its YAML as metadata ``world``. Dry runs."""
-        self._put("world", t_mono_s, json.loads(json.dumps(dict(world), default=list)))
+        self._put("world", t_mono_s, to_jsonable(dict(world)))
 
     def px4_time(self, t_mono_s: float, px4_boot_us: int, px4_unix_us: int = 0) -> None:
         """PX4's clock: a MAVLink SYSTEM_TIME (``time_boot_ms`` as us, ``time_unix_usec``) that

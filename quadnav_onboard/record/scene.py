@@ -13,6 +13,7 @@ Pure: builders take values and return the message's bytes.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -35,7 +36,6 @@ from foxglove.messages import (
 )
 from numpy.typing import ArrayLike
 
-from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.primitives import PrimitiveSet
 
 __all__ = ["CURVE_POINTS", "encode_geofence", "encode_primitives", "encode_rough_path", "encode_world"]
@@ -139,19 +139,33 @@ def encode_geofence(t_ns: int, min_m: ArrayLike, max_m: ArrayLike) -> bytes:
     return _update(t_ns, "geofence", lines=[line])
 
 
+@functools.lru_cache(maxsize=8)
+def _curve_terms(prims: PrimitiveSet, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The parts of every primitive's curve that do not depend on the start: the end-point term
+    (A, n, 3, heading frame, m) and the start velocity's weight (n, 1) times the step time / 3."""
+    # PrimitiveSet.control_points: p0 = 0, p1 = v0 T / 3, p2 = 2 d / 3, p3 = d, so a point at u is
+    # b1(u) v0 T / 3 + (2 b2(u) / 3 + b3(u)) d
+    u = np.linspace(0.0, 1.0, n_points)
+    b1, b2, b3 = 3 * (1 - u) ** 2 * u, 3 * (1 - u) * u**2, u**3
+    ends = prims.end_displacement_m(np.arange(prims.n_actions))
+    end_term = (2 * b2 / 3 + b3)[None, :, None] * ends[:, None, :]
+    return end_term, (b1 * prims.duration_s / 3)[:, None]
+
+
 def primitive_curves_world_m(
     prims: PrimitiveSet, start_world_m: ArrayLike, start_vel_world_m_s: ArrayLike, yaw_rad: float,
     n_points: int = CURVE_POINTS,
 ) -> np.ndarray:
     """Every primitive's curve (world, m), shape (n_actions, n_points, 3), from the commanded
-    start with the start velocity, in the heading frame of ``yaw_rad`` (as the daemon flies it)."""
-    v0_heading = world_to_body(np.asarray(start_vel_world_m_s, dtype=np.float64), float(yaw_rad))
-    ctrl = prims.control_points(np.arange(prims.n_actions), v0_heading)  # (A, 4, 3), heading frame
-    u = np.linspace(0.0, 1.0, n_points)[:, None]
-    a = 1.0 - u
-    basis = np.hstack([a**3, 3 * a**2 * u, 3 * a * u**2, u**3])  # (n, 4)
-    disp = np.einsum("nk,akd->and", basis, ctrl)
-    return np.asarray(start_world_m, dtype=np.float64) + body_to_world(disp, float(yaw_rad))
+    start with the start velocity, in the heading frame of ``yaw_rad`` (as the daemon flies it:
+    :class:`~quadnav_onboard.daemon.mission.ActivePrimitive`)."""
+    end_term, vel_weight = _curve_terms(prims, n_points)
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    vx, vy, vz = np.asarray(start_vel_world_m_s, dtype=np.float64).reshape(3).tolist()
+    v0_heading = np.array([c * vx + s * vy, -s * vx + c * vy, vz])
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # row vectors: heading -> world
+    disp = end_term + vel_weight * v0_heading
+    return np.asarray(start_world_m, dtype=np.float64) + disp @ rot
 
 
 def encode_primitives(
@@ -172,14 +186,16 @@ def encode_primitives(
         raise ValueError(
             f"action {action} or filter verdict {ok.shape} does not fit {prims.n_actions} primitives"
         )
+    points = [[Point3(x=x, y=y, z=z) for x, y, z in curve] for curve in curves.tolist()]
+    chosen = int(action)
     lines = [
         LinePrimitive(type=LinePrimitiveLineType.LineStrip, thickness=1.5, scale_invariant=True,
-                      points=_points(c), color=_ALLOWED if good else _VETOED)
-        for i, (c, good) in enumerate(zip(curves, ok.tolist(), strict=True))
-        if i != int(action)
+                      points=pts, color=_ALLOWED if good else _VETOED)
+        for i, (pts, good) in enumerate(zip(points, ok.tolist(), strict=True))
+        if i != chosen
     ]
     lines.append(LinePrimitive(type=LinePrimitiveLineType.LineStrip, thickness=4.0, scale_invariant=True,
-                               points=_points(curves[int(action)]), color=_CHOSEN))
+                               points=points[chosen], color=_CHOSEN))
     sp = SpherePrimitive(pose=_pose(np.asarray(moving_setpoint_world_m, dtype=np.float64).reshape(3)),
                          size=_v3((0.3, 0.3, 0.3)), color=_SETPOINT)
     return _update(t_ns, "primitives", lines=lines, spheres=[sp])

@@ -209,13 +209,23 @@ def _yaw_q(yaw_rad: float) -> Quaternion:
 
 def _finite(values: Any) -> list[Any]:
     """A float array as a list with NaN/inf as None (JSON has neither)."""
-    a = np.asarray(values, dtype=np.float64).reshape(-1)
-    return [v if math.isfinite(v) else None for v in a.tolist()]
+    if isinstance(values, np.ndarray) and values.dtype == np.float64:
+        lst = values.ravel().tolist()
+    else:
+        lst = np.asarray(values, dtype=np.float64).ravel().tolist()
+    if all(map(math.isfinite, lst)):
+        return lst
+    return [v if math.isfinite(v) else None for v in lst]
 
 
 def _vec_json(v: ArrayLike) -> dict[str, Any]:
     x, y, z = _finite(v)[:3]
     return {"x": x, "y": y, "z": z}
+
+
+def _num(v: Any) -> float | None:
+    f = float(v)
+    return f if math.isfinite(f) else None
 
 
 def to_jsonable(value: Any) -> Any:
@@ -341,11 +351,11 @@ def encode_step(t_mono_s: float, d: Mapping[str, Any]) -> bytes:
         "rel_pos_body_m": _vec_json(d["rel_pos_body_m"]),
         "moving_setpoint_world_m": _vec_json(d["moving_setpoint_world_m"]),
         "pos_world_m": _vec_json(d["pos_world_m"]),
-        "reward": _finite([d["reward"]])[0],
+        "reward": _num(d["reward"]),
         "reward_terms": to_jsonable(dict(d["reward_terms"])),
-        "progress_m": _finite([d["progress_m"]])[0],
-        "deviation_m": _finite([d["deviation_m"]])[0],
-        "latency_ms": _finite([d["latency_ms"]])[0],
+        "progress_m": _num(d["progress_m"]),
+        "deviation_m": _num(d["deviation_m"]),
+        "latency_ms": _num(d["latency_ms"]),
     }
     if d.get("shield_allowed") is not None:
         msg["shield_allowed"] = [bool(a) for a in np.asarray(d["shield_allowed"]).reshape(-1).tolist()]

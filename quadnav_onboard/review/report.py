@@ -14,6 +14,7 @@ import html
 import io
 import math
 from collections.abc import Sequence
+from datetime import datetime, timezone
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -113,6 +114,20 @@ def _metadata(rec: FlightRecord) -> str:
     return "".join(parts)
 
 
+def _clock(rec: FlightRecord) -> str:
+    """When the flight's first decision was, in UTC, and how PX4's ULog lines up with it."""
+    if rec.format_version < 2:
+        return "record format 1: monotonic times only"
+    t0_ns = round(plots.t_zero(rec) * 1e9) + rec.unix_minus_mono_ns
+    start = datetime.fromtimestamp(t0_ns / 1e9, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+    px4 = (
+        f"PX4 ULog time + {rec.px4_time[-1]['unix_minus_px4_boot_us']} µs = UTC"
+        if rec.px4_time
+        else "no PX4 clock recorded"
+    )
+    return f"time 0 = {start} UTC · {px4}"
+
+
 def _flight_section(rec: FlightRecord, row: FlightRow, warnings: Sequence[str]) -> str:
     out = [f"<h2>Flight {_e(rec.name)}</h2>", _row_table([row])]
     stop = rec.stop or {}
@@ -121,7 +136,8 @@ def _flight_section(rec: FlightRecord, row: FlightRow, warnings: Sequence[str]) 
         f"<p>Stopped because: <b>{_e(row.stop_reason)}</b>{' (' + _e(row.detail) + ')' if row.detail else ''}"
         f" · {row.steps} decisions · "
         f"record {'complete' if rec.complete else 'CUT OFF: ' + _e(rec.problem or '')} · "
-        f"dropped: {_e(dropped or 'none')} · model {_e(rec.info.get('model_sha256', '?')[:12])}</p>"
+        f"dropped: {_e(dropped or 'none')} · model {_e(rec.info.get('model_sha256', '?')[:12])}"
+        f" · {_e(_clock(rec))}</p>"
     )
     out.extend(f'<div class="warn">{_e(w)}</div>' for w in warnings)
     out.append("<h3>Where it went</h3>")
