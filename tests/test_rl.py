@@ -183,3 +183,118 @@ def test_weighted_update_ignores_zero_weight_samples_and_reports_td_errors() -> 
     for a, b in zip(agents[0].q.parameters(), agents[1].q.parameters(), strict=True):
         torch.testing.assert_close(a, b)
     assert agents[0].last_td_abs.shape == (4,) and (agents[0].last_td_abs > 0).all()
+
+
+# -- the run's logs: evaluations during training, TensorBoard, hooks ------------------------------
+def _tiny_config(out_dir, **kw):
+    from sim_harness.rl.config import TrainConfig
+
+    base = dict(
+        name="tiny", seed=3, episodes=12, train_worlds=(1, 4), n_envs=4, max_steps=12, batch_size=8,
+        buffer_size=500, learning_starts=16, target_update_interval=5, checkpoint_every=4,
+        out_dir=str(out_dir),
+    )  # fmt: skip
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _rows(run_dir) -> list[dict]:
+    import json
+
+    rows = json.loads((run_dir / "metrics.json").read_text())
+    return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+
+
+class _Seen:
+    """A TrainHook that keeps what it is told."""
+
+    def __init__(self) -> None:
+        self.episodes: list[int] = []
+        self.evaluations: list[tuple[int, dict, bool]] = []
+
+    def on_episode(self, row: dict) -> None:
+        self.episodes.append(row["episode"])
+
+    def on_evaluation(self, episode: int, scores: dict, model_path, run_dir) -> None:
+        self.evaluations.append((episode, scores, model_path.is_file()))
+
+
+def test_evaluations_during_training_leave_the_training_itself_unchanged(tmp_path) -> None:
+    """Same seed with and without eval_every: the same episodes, losses and final weights; the
+    evaluations are written every 6 episodes and at the end, and the hooks see each of them."""
+    import json
+
+    from quadnav_onboard.checkpoint import load_checkpoint
+    from sim_harness.rl.train import train
+
+    plain = train(_tiny_config(tmp_path / "a", tensorboard=False), progress=False)
+    seen = _Seen()
+    evald = train(_tiny_config(tmp_path / "b", eval_every=6, eval_trials=1), progress=False, hooks=[seen])
+    assert _rows(plain.run_dir) == _rows(evald.run_dir)
+    wa = load_checkpoint(plain.model_path).model.state_dict()
+    wb = load_checkpoint(evald.model_path).model.state_dict()
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    evals = json.loads((evald.run_dir / "evals.json").read_text())
+    assert [e["episode"] for e in evals] == [6, 12]
+    assert all(0.0 <= e["goal_rate"] <= 1.0 and 0.0 <= e["collision_free_rate"] <= 1.0 for e in evals)
+    assert (evald.run_dir / "evals.csv").read_text().splitlines()[0].startswith("episode,env_steps,goal_rate")
+    assert seen.episodes == list(range(12))
+    assert [(e, ok) for e, _, ok in seen.evaluations] == [(6, True), (12, True)]
+    assert not (plain.run_dir / "evals.json").exists() and not (plain.run_dir / "tb").exists()
+
+
+def test_tensorboard_files_hold_the_runs_curves(tmp_path) -> None:
+    """Reward, length, outcome rates, ε, γ, loss and the evaluation scores, one point per episode
+    (per evaluation for the scores), beside the run's metrics CSV and JSON."""
+    ea = pytest.importorskip(
+        "tensorboard.backend.event_processing.event_accumulator",
+        reason='the tensorboard extra is not installed (pip install "quadnav[tensorboard]")',
+    )
+    from sim_harness.rl.train import train
+
+    result = train(_tiny_config(tmp_path, eval_every=6, eval_trials=1), progress=False)
+    acc = ea.EventAccumulator(str(result.run_dir / "tb"))
+    acc.Reload()
+    tags = set(acc.Tags()["scalars"])
+    per_episode = {"episode/reward", "episode/length", "schedule/epsilon", "schedule/gamma",
+                   "outcome/goal", "outcome/crash", "outcome/deviation", "outcome/timeout"}  # fmt: skip
+    assert per_episode | {"train/loss", "eval/goal_rate", "eval/collision_free_rate"} <= tags
+    rewards = [e.value for e in acc.Scalars("episode/reward")]
+    assert rewards == pytest.approx([r["reward"] for r in _rows(result.run_dir)], abs=1e-5)
+    assert [e.step for e in acc.Scalars("eval/goal_rate")] == [6, 12]
+    last_rates = [acc.Scalars(f"outcome/{o}")[-1].value for o in ("goal", "crash", "deviation", "timeout")]
+    assert sum(last_rates) == pytest.approx(1.0)
+    assert (result.run_dir / "metrics.csv").is_file() and (result.run_dir / "metrics.json").is_file()
+
+
+def test_without_tensorboard_the_run_goes_on_and_writes_its_metrics(tmp_path, monkeypatch) -> None:
+    import builtins
+
+    from sim_harness.rl import tblog
+    from sim_harness.rl.train import train
+
+    real_import = builtins.__import__
+
+    def no_tensorboard(name: str, *args, **kwargs):
+        if name.startswith("torch.utils.tensorboard") or name.startswith("tensorboard"):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_tensorboard)
+    monkeypatch.setattr(tblog, "_warned", False)
+    assert not tblog.tensorboard_available()
+    result = train(_tiny_config(tmp_path, episodes=4), progress=False)
+    assert not (result.run_dir / "tb").exists() and len(_rows(result.run_dir)) == 4
+
+
+def test_limit_threads_holds_torch_and_numba_to_the_counts_asked() -> None:
+    import numba
+
+    from sim_harness.rl.threads import limit_threads
+
+    before = numba.get_num_threads()
+    try:
+        counts = limit_threads(1, 1)
+        assert (counts.torch, counts.numba) == (1, 1) == (torch.get_num_threads(), numba.get_num_threads())
+    finally:
+        numba.set_num_threads(before)

@@ -32,9 +32,9 @@ def limit_threads(torch_threads: int = 1, numba_threads: int = 1) -> ThreadCount
     import numba
     import torch
 
-    # both, always: numba's OpenMP layer sets OpenMP's thread count (torch's too) to numba's own at
-    # its parallel launches, so torch held to one thread while numba keeps all cores does not stay
-    # so (measured: benchmarks/bench_sb3.py reports torch's count after training)
+    # numba first, then torch: numba starting its OpenMP pool (its first parallel kernel, or
+    # set_num_threads) sets OpenMP's thread count, which is torch's too, back to numba's pool size,
+    # so a torch count set before that does not last (measured: torch 1 -> 2)
     if numba_threads >= 1:
         numba.set_num_threads(min(numba_threads, numba.config.NUMBA_NUM_THREADS))
     if torch_threads >= 1:

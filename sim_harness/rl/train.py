@@ -213,9 +213,9 @@ def train(
         cfg = load_train_config(read_config_file(run_dir / "config.json"), str(run_dir / "config.json"))
     else:
         cfg = config or TrainConfig()
-    torch.set_num_threads(cfg.torch_threads)
-    if cfg.sim_threads > 0:
+    if cfg.sim_threads > 0:  # numba first: starting its OpenMP pool resets OpenMP's (torch's) count
         numba.set_num_threads(min(cfg.sim_threads, numba.config.NUMBA_NUM_THREADS))
+    torch.set_num_threads(cfg.torch_threads)
     torch.manual_seed(cfg.seed)
     env_cfg = env_config_for(cfg)
     world_paths = [Path(p) for p in cfg.world_files] or [paper_world_path(i) for i in cfg.train_worlds]
