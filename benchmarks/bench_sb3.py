@@ -1,4 +1,4 @@
-"""Stable-Baselines3's DQN on the navigation task: env steps/s, training included, and the threads.
+"""Stable-Baselines3's DQN on the navigation env: env steps/s, training included, and the threads.
 
     .venv/bin/python benchmarks/bench_sb3.py [--steps 20000] [--json OUT]
 

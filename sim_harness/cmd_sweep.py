@@ -23,7 +23,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "sweep",
         help="train many configurations on Ray Tune (search spaces, seeds, ASHA, resume, clusters)",
         description="Run a sweep of training runs on Ray Tune (pip install 'quadnav[sweep]'). Writes "
-        "OUT/sweep.json, OUT/sweep.csv and OUT/best.json; --resume OUT continues a killed sweep.",
+        "OUT/sweep.json, OUT/sweep.csv and OUT/best.json; --resume continues a killed sweep. Exit "
+        "status 0 when at least one trial finished, 1 when every trial failed, 2 on bad input, 3 "
+        "without Ray.",
     )
     p.add_argument("--out", required=True, help="the sweep's folder (runs, tables, Ray's state)")
     p.add_argument(
@@ -49,7 +51,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--scheduler", choices=("fifo", "asha"), default="fifo", help="asha stops bad trials early"
     )
     p.add_argument(
-        "--metric", default="goal_rate", help="score maximised (goal_rate, collision_free_rate, ...)"
+        "--metric",
+        choices=("goal_rate", "collision_free_rate", "distance_m", "reward"),
+        default="goal_rate",
+        help="score on the training worlds that ASHA maximises",
     )
     p.add_argument("--grace-period", type=int, default=500, help="episodes before ASHA may stop a trial")
     p.add_argument("--eval-every", type=int, default=500, help="episodes between scores reported in training")

@@ -553,7 +553,7 @@ class QuadNavVectorEnv(gym.vector.VectorEnv):
 
 
 ENV_ID = "quadnav/QuadNav-v0"
-"""The Gymnasium id of the navigation task (registered when this module is imported)."""
+"""The Gymnasium id of the navigation env (registered when this module is imported)."""
 
 WorldSpec = World | str | Path | int
 """A world: loaded, a world file's path, or a paper world id (1-10)."""

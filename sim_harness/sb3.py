@@ -1,4 +1,4 @@
-"""Stable-Baselines3 on the navigation task (the ``sb3`` extra: ``pip install "quadnav[sb3]"``).
+"""Stable-Baselines3 on the navigation env (the ``sb3`` extra: ``pip install "quadnav[sb3]"``).
 
 - :class:`PaperLanes`: an SB3 features extractor made of the paper's depth and position lanes
   (:class:`quadnav_onboard.network.DQN`); with ``net_arch=[64, 32]`` SB3's Q-network is the

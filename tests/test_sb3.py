@@ -1,4 +1,4 @@
-"""Stable-Baselines3 on the navigation task: the paper's network as SB3's Q-network, the batched
+"""Stable-Baselines3 on the navigation env: the paper's network as SB3's Q-network, the batched
 VecEnv's SB3 conventions, and a tiny DQN run that trains and is evaluated."""
 
 from __future__ import annotations

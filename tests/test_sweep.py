@@ -19,13 +19,23 @@ pytest.importorskip("ray.tune", reason='the sweep extra is not installed: pip in
 
 pytestmark = pytest.mark.slow
 
-TINY = [
-    "--set", "episodes=20", "--set", "train_worlds=1+4", "--set", "n_envs=4", "--set", "max_steps=12",
-    "--set", "batch_size=8", "--set", "buffer_size=500", "--set", "learning_starts=16",
-    "--set", "checkpoint_every=5", "--eval-every", "10", "--eval-trials", "1", "--final-trials", "1",
-    "--no-progress", "--num-cpus", "2",
-]  # fmt: skip
-"""Overrides and options of a sweep that takes seconds per trial."""
+TINY_SET = {
+    "episodes": "20", "train_worlds": "1+4", "n_envs": "4", "max_steps": "12", "batch_size": "8",
+    "buffer_size": "500", "learning_starts": "16", "checkpoint_every": "5",
+}  # fmt: skip
+"""TrainConfig overrides of a trial that takes seconds."""
+TINY_OPTIONS = ["--eval-every", "10", "--eval-trials", "1", "--final-trials", "1", "--no-progress",
+                "--num-cpus", "2"]  # fmt: skip
+"""Scores every 10 episodes, one evaluation trial per world, no progress bar, two CPUs."""
+
+
+def _tiny(*leave_out: str) -> list[str]:
+    """The tiny sweep's flags (less the overrides named)."""
+    sets = [a for k, v in TINY_SET.items() if k not in leave_out for a in ("--set", f"{k}={v}")]
+    return [*sets, *TINY_OPTIONS]
+
+
+TINY = _tiny()
 
 
 def _sweep(out: Path, *args: str, timeout_s: float = 240) -> subprocess.CompletedProcess:
@@ -72,6 +82,21 @@ def test_a_trial_that_raises_is_recorded_failed_while_the_other_finishes(tmp_pat
     assert "WorldError" in failed["error"] and str(missing) in failed["error"]
     best = json.loads((out / "best.json").read_text())
     assert best["trial_id"] == records["[]"]["trial_id"]
+
+
+def test_asha_stops_the_trials_whose_scores_fall_behind(tmp_path: Path) -> None:
+    """Two trials flying 12-step episodes, then two flying 1-step ones (their evaluations cover a
+    fraction of the distance): at the rung of episode 10 ASHA stops the two short ones, the others
+    run to the end."""
+    out = tmp_path / "sw"
+    proc = _sweep(
+        out, "--name", "tiny", "--grid", "max_steps=12,1", "--seeds", "0", "1", "--scheduler", "asha",
+        "--metric", "distance_m", "--grace-period", "10", "--max-concurrent", "1", *_tiny("max_steps"),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    table = json.loads((out / "sweep.json").read_text())
+    status = {(r["config"]["max_steps"], r["config"]["seed"]): r["status"] for r in table}
+    assert status == {(12, 0): "ok", (12, 1): "ok", (1, 0): "stopped", (1, 1): "stopped"}
 
 
 def _finished_trials(out: Path) -> int:

@@ -95,3 +95,27 @@ def test_a_spec_survives_its_json_round_trip() -> None:
     )
     again = spec_from_mapping(spec.to_dict(), "sweep_spec.json")
     assert again == spec and again.n_trials() == 8
+
+
+def test_the_sweep_file_in_the_training_doc_is_a_valid_sweep() -> None:
+    """docs/training.md's example sweep file parses and holds the trials its comment says."""
+    import re
+
+    import yaml
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "training.md").read_text(encoding="utf-8")
+    block = next(b for b in re.findall(r"```yaml\n(.*?)```", doc, re.S) if "lr-ddqn" in b)
+    spec = spec_from_mapping(yaml.safe_load(block), "docs/training.md")
+    assert spec.name == "lr-ddqn" and spec.n_trials() == 12 and spec.seeds == (0, 1, 2)
+
+
+def test_paths_in_a_sweep_become_absolute_before_trials_run(tmp_path: Path, monkeypatch) -> None:
+    """Ray starts a trial in a folder of its own: a relative world file must still be found."""
+    from sim_harness.rl.tune_sweep import absolute_paths
+
+    monkeypatch.chdir(tmp_path)
+    grid = {"world_files": [["a.yaml"], ["b.yaml", "/abs/c.yaml"]]}
+    fixed = absolute_paths(spec_from_mapping({"base": {"init_model": "m.pt"}, "grid": grid}, "t"))
+    assert fixed.base["init_model"] == str(tmp_path / "m.pt")
+    a, bc = fixed.grid["world_files"]
+    assert a == (str(tmp_path / "a.yaml"),) and bc == (str(tmp_path / "b.yaml"), "/abs/c.yaml")

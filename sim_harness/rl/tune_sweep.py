@@ -29,10 +29,12 @@ import structlog
 from sim_harness.rl.sweep_space import SweepSpec, spec_from_mapping
 
 __all__ = [
+    "PATH_FIELDS",
     "SWEEP_EXTRA",
     "SweepOptions",
     "SweepOutcome",
     "SweepUnavailable",
+    "absolute_paths",
     "best_record",
     "resume_sweep",
     "run_sweep",
@@ -127,8 +129,9 @@ class _Reporter:
 
 
 def _own_run(trial_out: Path) -> Path | None:
-    """This trial's run directory from an earlier start (the newest with a checkpoint), if any."""
-    runs = sorted(p.parent for p in trial_out.glob("*/state.json"))
+    """This trial's run directory from an earlier start, if any: ``train(resume=...)`` continues it
+    from its last checkpoint, or from its first episode when it was stopped before one."""
+    runs = sorted(p.parent for p in trial_out.glob("*/config.json"))
     return runs[-1] if runs else None
 
 
@@ -253,10 +256,34 @@ def _tune_parts(spec: SweepSpec, options: SweepOptions, progress: bool) -> tuple
     return tune_config, run_config
 
 
+PATH_FIELDS = ("world_files", "init_model")
+"""TrainConfig fields holding file paths: made absolute before the trials run (Ray starts each
+trial in a folder of its own, and a cluster node in another machine's)."""
+
+
+def _absolute(key: str, value: Any) -> Any:
+    if key == "world_files":
+        return tuple(str(Path(v).resolve()) for v in value)
+    return str(Path(value).resolve()) if value else value
+
+
+def absolute_paths(spec: SweepSpec) -> SweepSpec:
+    """``spec`` with every path of :data:`PATH_FIELDS` (in base, grid and choices) made absolute."""
+    base = {k: _absolute(k, v) if k in PATH_FIELDS else v for k, v in spec.base.items()}
+    grid = {k: tuple(_absolute(k, v) for v in vs) if k in PATH_FIELDS else vs for k, vs in spec.grid.items()}
+    sample = {
+        k: dataclasses.replace(d, values=tuple(_absolute(k, v) for v in d.values)) if k in PATH_FIELDS else d
+        for k, d in spec.sample.items()
+    }
+    return dataclasses.replace(spec, base=base, grid=grid, sample=sample)
+
+
 def run_sweep(spec: SweepSpec, options: SweepOptions, *, progress: bool = True) -> SweepOutcome:
     """Run every trial of ``spec`` (ASHA may stop some early); write and return the tables."""
     _require_ray()
     from ray import tune
+
+    spec = absolute_paths(spec)
 
     if options.scheduler == "asha" and options.eval_every <= 0:
         raise ValueError("ASHA needs scores during training: eval_every >= 1")
@@ -304,7 +331,7 @@ def _record_of(result: Any) -> dict[str, Any]:
     config = dict(result.config or {})
     trial_id = metrics.get("trial_id") or Path(str(result.path)).name
     if result.error is not None:
-        cause = getattr(result.error, "cause", None) or result.error  # a RayTaskError wraps the trial's
+        cause = getattr(result.error, "cause", None) or result.error  # Ray wraps the trial's error
         return {
             "status": "failed",
             "error": f"{type(cause).__name__}: {cause}"[:2000],
