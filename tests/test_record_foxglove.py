@@ -3,6 +3,7 @@ tree, log times are UTC and in order per channel, and the 3-D scene and PX4's cl
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import subprocess
@@ -10,16 +11,19 @@ import sys
 import time
 from collections import defaultdict
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 
 from quadnav_onboard.daemon.testing import constant_action_checkpoint
-from quadnav_onboard.record import FlightRecorder, read_record
+from quadnav_onboard.record import FlightRecorder, NullRecorder, read_record
 from quadnav_onboard.record.decode import DecoderFactory, ProtobufSchema
+from quadnav_onboard.record.flight import record_px4_time
 from quadnav_onboard.record.schemas import CAMERA_FRAME, JSON_SCHEMAS, PROTOBUF_SCHEMAS, TOPICS
 from quadnav_onboard.review.cli import main as review_main
+from quadnav_onboard.vehicle import MavsdkVehicle
 
 DATA = Path(__file__).parent / "data"
 
@@ -228,3 +232,40 @@ def test_nan_poses_are_refused_but_nan_q_values_are_kept_as_null(tmp_path):
         assert rec.drop_counts["invalid"] == 1
     r = read_record(path)
     assert len(r.odom_t_s) == 0 and np.isnan(r.step_array("q_values")).all()
+
+
+class _Direct:
+    """MAVSDK's mavlink_direct plugin as far as the SYSTEM_TIME watch uses it."""
+
+    def __init__(self, messages: list[dict]) -> None:
+        self.messages = messages
+        self.asked: list[str] = []
+
+    async def subscribe_message(self, name: str):
+        self.asked.append(name)
+        for fields in self.messages:
+            yield SimpleNamespace(fields_json=json.dumps(fields))
+
+
+def test_px4s_system_time_goes_from_the_link_into_the_record(tmp_path):
+    """The vehicle link keeps the newest SYSTEM_TIME (boot time in us, PX4's UTC) with its arrival
+    time, skips a garbled one, and the recorder writes it as PX4's offset; no report, no message."""
+    vehicle = MavsdkVehicle("udpin://0.0.0.0:14999")
+    vehicle._direct = _Direct([
+        {"time_unix_usec": 0, "time_boot_ms": 1000},
+        {"time_boot_ms": "garbled"},
+        {"time_unix_usec": 1_796_000_000_000_000, "time_boot_ms": 2500},
+    ])
+    assert not record_px4_time(NullRecorder(), vehicle.state)
+    before = time.monotonic()
+    asyncio.run(vehicle._watch_system_time())
+    assert vehicle._direct.asked == ["SYSTEM_TIME"]
+    t_arrival, boot_us, unix_us = vehicle.state.px4_time
+    assert boot_us == 2_500_000 and unix_us == 1_796_000_000_000_000
+    assert before <= t_arrival <= time.monotonic()
+    path = tmp_path / "f.mcap"
+    with FlightRecorder(path, metadata={}) as rec:
+        assert record_px4_time(rec, vehicle.state)
+        rec.close("operator_stop", {})
+    (px4,) = read_record(path).px4_time
+    assert px4["px4_boot_us"] == 2_500_000 and px4["px4_unix_us"] == 1_796_000_000_000_000
