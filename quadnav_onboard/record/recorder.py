@@ -228,29 +228,32 @@ class FlightRecorder:
         """The write error that stopped recording, if any."""
         return self._failed
 
-    def _put(self, kind: str, t_mono_s: float, payload: Any, *, image: bool = False) -> None:
+    def _put(self, kind: str, t_mono_s: float, payload: Any, *, image: bool = False) -> bool:
+        """Queue one item; False when it was dropped (counted)."""
         with self._cond:
             if not _valid_t(t_mono_s):
                 self._drops["invalid"] += 1
                 self._local_invalid += 1
                 _log.error("recorder_invalid_time", kind=kind, t_mono_s=repr(t_mono_s))
-                return
+                return False
             t = float(t_mono_s)
             if self._closing or self._failed is not None:
                 self._drops["failed"] += 1
-                return
+                return False
             if image:
                 if len(self._images) >= self._image_queue_size or len(self._control) > self._queue_size // 2:
                     self._drops["depth"] += 1
-                    return
+                    return False
                 self._images.append((kind, t, payload))
+                return True
             else:
                 if len(self._control) >= self._queue_size:
                     self._drops["control"] += 1
-                    return
+                    return False
                 self._control.append((kind, t, payload))
                 if len(self._control) == self._queue_size // 4:
                     self._cond.notify()  # a burst: drain now rather than at the next batch
+                return True
 
     def depth(self, t_mono_s: float, depth_mm: np.ndarray) -> None:
         """A raw depth frame (uint16 mm, (H, W), 0 = invalid); 1 in ``depth_decimation`` is kept."""
@@ -323,9 +326,8 @@ class FlightRecorder:
         drawn = None
         if primitive is not None:
             prims = primitive.primitives
-            if prims is not self._prims_sent:
-                self._prims_sent = prims
-                self._put("primitive_set", t_mono_s, prims)
+            if prims is not self._prims_sent and self._put("primitive_set", t_mono_s, prims):
+                self._prims_sent = prims  # sent once; again only if it changes (or was dropped)
             drawn = (
                 np.array(primitive.start_world_m, dtype=np.float64),
                 np.array(primitive.start_vel_world_m_s, dtype=np.float64),
