@@ -127,7 +127,8 @@ class ShieldConfig:
     Range: [0, 5], below ``search_radius_m``."""
     known_floor: bool = True
     """Also keep ``clearance_m`` from the floor plane when its height is known (the sim: each
-    world's floor; the daemon: world z = 0, as the supervisor's altitude band already assumes).
+    world's floor; the daemon: world z = 0, which is the ground the vehicle stood on at take-off or
+    the configured ground, never the estimator's origin: ``safety.ground_reference``).
     The camera cannot see the floor below the vehicle; descents onto it were what crashed."""
     camera_offset_m: tuple[_OffsetM, _OffsetM, _OffsetM] = (0.0, 0.0, 0.0)
     """Where the depth camera sits relative to the odometry's body origin, in the heading frame

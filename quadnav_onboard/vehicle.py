@@ -47,6 +47,7 @@ from quadnav_onboard.vehicle_binding import (
 __all__ = [
     "MAV_STATE_EMERGENCY",
     "MavsdkVehicle",
+    "Px4Setup",
     "VehicleError",
     "VehicleErrorKind",
     "VehicleLink",
@@ -75,11 +76,15 @@ class VehicleErrorKind(enum.Enum):
 
 
 class VehicleError(RuntimeError):
-    """A vehicle command failed, was refused or timed out; ``kind`` says which."""
+    """A vehicle command failed, was refused or timed out; ``kind`` says which, ``result`` names
+    MAVSDK's result (e.g. ``NO_SETPOINT_SET``, ``COMMAND_DENIED``) when it gave one."""
 
-    def __init__(self, message: str, kind: VehicleErrorKind = VehicleErrorKind.REFUSED) -> None:
+    def __init__(
+        self, message: str, kind: VehicleErrorKind = VehicleErrorKind.REFUSED, result: str | None = None
+    ) -> None:
         super().__init__(message)
         self.kind = kind
+        self.result = result
 
 
 @dataclass
@@ -164,6 +169,23 @@ class VehicleLink(Protocol):
     async def close(self) -> None: ...
 
 
+@runtime_checkable
+class Px4Setup(Protocol):
+    """What preflight asks of a PX4 link beyond :class:`VehicleLink` (MAVSDK implements it)."""
+
+    async def request_telemetry_rates(self, rate_hz: float) -> None:
+        """Ask PX4 for ODOMETRY and LOCAL_POSITION_NED at ``rate_hz``; VehicleError if refused."""
+
+    async def read_parameters(self, names: dict[str, str]) -> dict[str, float | None]:
+        """Read each ``name -> "int" | "float"`` parameter; None for one PX4 did not answer."""
+
+
+def _result_name(exc: BaseException) -> str | None:
+    """The name of the result enum a MAVSDK error carries (its first argument), else None."""
+    first = exc.args[0] if exc.args else None
+    return first.name if isinstance(first, enum.Enum) else None
+
+
 MAVSDK_VERSION = "4.1.0"
 """The MAVSDK release :func:`_sync_setpoint_sender` is written against (pinned in pyproject.toml)."""
 
@@ -212,6 +234,7 @@ class MavsdkVehicle:
         self._mavsdk = None
         self._guard: LinkGuard | None = None
         self._telemetry = self._action = self._offboard = self._mocap = self._direct = None
+        self._param: Any = None
         self._send_setpoint: Callable[[Any, Any], Any] | None = None
 
     async def connect(self) -> None:
@@ -222,6 +245,7 @@ class MavsdkVehicle:
         from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
         from mavsdk.asyncio.plugins.mocap import MocapAsync
         from mavsdk.asyncio.plugins.offboard import OffboardAsync
+        from mavsdk.asyncio.plugins.param import ParamAsync
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
         url = await self._bind()
@@ -255,6 +279,7 @@ class MavsdkVehicle:
         await system.enable_timesync()
         self._mocap = MocapAsync(system)
         self._direct = MavlinkDirectAsync(system)
+        self._param = ParamAsync(system)
         self.state.connected = True
         self.state.t_last_msg_mono_s = time.monotonic()
         log.info("vehicle_connected", url=self.url, vehicle=str(self.state.binding or "(link not owned)"))
@@ -390,8 +415,37 @@ class MavsdkVehicle:
         except VehicleError:
             raise
         except Exception as exc:  # MAVSDK raises ActionError/OffboardError with the PX4 result
-            raise VehicleError(f"{name}: refused: {exc}", VehicleErrorKind.REFUSED) from exc
+            result = _result_name(exc)
+            raise VehicleError(f"{name}: refused: {result or exc}", VehicleErrorKind.REFUSED, result) from exc
         log.info("vehicle_command", command=name)
+
+    async def request_telemetry_rates(self, rate_hz: float) -> None:
+        """Ask PX4 for ODOMETRY and LOCAL_POSITION_NED at ``rate_hz`` (SET_MESSAGE_INTERVAL
+        through MAVSDK's telemetry rate setters)."""
+        if self._telemetry is None:
+            raise VehicleError("telemetry rates: not connected", VehicleErrorKind.NOT_CONNECTED)
+        tel = self._telemetry
+        await self._command("set_rate_odometry", lambda: tel.set_rate_odometry(float(rate_hz)))
+        await self._command("set_rate_position_velocity_ned",
+                            lambda: tel.set_rate_position_velocity_ned(float(rate_hz)))
+
+    async def read_parameters(self, names: dict[str, str]) -> dict[str, float | None]:
+        """Each ``name -> "int" | "float"`` parameter over MAVLink (PARAM_REQUEST_READ through
+        MAVSDK's param plugin), one at a time, each bounded by ``command_timeout_s``; None for a
+        parameter PX4 did not answer or that has another type."""
+        if self._param is None:
+            raise VehicleError("parameters: not connected", VehicleErrorKind.NOT_CONNECTED)
+        values: dict[str, float | None] = {}
+        for name, kind in names.items():
+            get = self._param.get_param_int if kind == "int" else self._param.get_param_float
+            try:
+                async with asyncio.timeout(self.command_timeout_s):
+                    values[name] = float(await get(name))
+            except Exception as exc:  # TimeoutError, ParamError (unknown name, wrong type)
+                why = _result_name(exc) or str(exc)
+                log.warning("parameter_not_read", name=name, error=f"{type(exc).__name__}: {why}")
+                values[name] = None
+        return values
 
     async def arm(self) -> None:
         await self._command("arm", self._action.arm)

@@ -59,6 +59,8 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("safety.altitude_floor_m", "negative"): "a world height (m): the origin above the floor",
     ("safety.altitude_ceiling_m", "zero"): "a world height (m)",
     ("safety.altitude_ceiling_m", "negative"): "a world height (m)",
+    ("safety.ground_z_m", "zero"): "the ground at the odometry frame's origin",
+    ("safety.ground_z_m", "negative"): "the ground below the odometry frame's origin",
     ("odometry.translation_world_m.*", "zero"): "the mocap origin (world, m)",
     ("odometry.translation_world_m.*", "negative"): "the mocap origin (world, m)",
     ("odometry.rotation_world_from_mocap.*", "zero"): "a rotation matrix entry",

@@ -24,7 +24,7 @@ ACCEPTED, DENIED, UNSUPPORTED = m.MAV_RESULT_ACCEPTED, m.MAV_RESULT_DENIED, m.MA
 
 
 def fast(**kw: object) -> EmulatorConfig:
-    return EmulatorConfig(**{"heartbeat_hz": 10.0, "land_disarm_s": 0.3, **kw})
+    return EmulatorConfig.idealised(**{"heartbeat_hz": 10.0, "land_disarm_s": 0.3, **kw})
 
 
 def stream(gcs: RawGcs, ned: tuple[float, float, float], duration_s: float, vision: bool = False) -> float:

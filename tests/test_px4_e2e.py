@@ -22,7 +22,7 @@ from sim_harness.px4 import EmulatorConfig, Px4Emulator, free_udp_port
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(60)]
 
-FAST = EmulatorConfig(heartbeat_hz=10.0, land_disarm_s=0.3)
+FAST = EmulatorConfig.idealised(heartbeat_hz=10.0, land_disarm_s=0.3)  # the ground at z = 0
 
 
 @contextlib.asynccontextmanager
@@ -84,7 +84,7 @@ async def test_mavsdk_connects_arms_flies_offboard_lands_and_disarms() -> None:
 
 async def test_mavsdk_takeoff_climbs_to_takeoff_altitude_and_holds() -> None:
     """Action.takeoff (NAV_TAKEOFF with NaN altitude) climbs to MIS_TAKEOFF_ALT and then holds."""
-    cfg = EmulatorConfig(heartbeat_hz=10.0, takeoff_alt_m=1.0)
+    cfg = EmulatorConfig.idealised(heartbeat_hz=10.0, takeoff_alt_m=1.0)
     with Px4Emulator(None, cfg, api_port=free_udp_port()) as emu:
         async with connected(emu) as drone:
             tel, action = TelemetryAsync(drone), ActionAsync(drone)

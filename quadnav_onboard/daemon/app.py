@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import gc
 import math
 import signal
@@ -26,6 +27,7 @@ import numpy as np
 from quadnav_onboard import jit
 from quadnav_onboard.daemon.config import FlightConfig
 from quadnav_onboard.daemon.decide import Decider, Motion
+from quadnav_onboard.daemon.ground import measure_ground
 from quadnav_onboard.daemon.ladder import StopLadder
 from quadnav_onboard.daemon.mission import (
     ActivePrimitive,
@@ -34,6 +36,7 @@ from quadnav_onboard.daemon.mission import (
     goal_reached,
     step_inputs,
 )
+from quadnav_onboard.daemon.px4_params import Severity, judge_parameters, parameter_rules
 from quadnav_onboard.daemon.summary import FlightSummary, SafeRecorder
 from quadnav_onboard.daemon.supervisor import (
     PreflightCheck,
@@ -41,15 +44,18 @@ from quadnav_onboard.daemon.supervisor import (
     StopReason,
     check_depth_frame,
     check_odometry,
+    check_odometry_rate,
     check_start_inside,
     check_vehicle_ready,
+    in_flight_stale_odometry_s,
+    measure_odometry_rate,
 )
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy
 from quadnav_onboard.preprocess import DepthFrameError
 from quadnav_onboard.sources.base import DepthFrame, DepthSource, OdometrySource
-from quadnav_onboard.vehicle import VehicleError, VehicleErrorKind, VehicleLink
+from quadnav_onboard.vehicle import Px4Setup, VehicleError, VehicleErrorKind, VehicleLink
 
 __all__ = ["FlightDaemon"]
 
@@ -249,6 +255,13 @@ class FlightDaemon(StopLadder):
         if bound is not None:
             self.recorder.event(time.monotonic(), "vehicle_bound", str(bound), system_id=bound.system_id)
         self._background.append(tg.create_task(self.watch_vehicle(), name="telemetry"))
+        if isinstance(self.vehicle, Px4Setup):
+            rate = self.cfg.vehicle.telemetry_rate_hz
+            try:
+                await self.vehicle.request_telemetry_rates(rate)
+                log.info("telemetry_rates_requested", rate_hz=rate)
+            except VehicleError as exc:  # preflight's rate check decides whether the stream will do
+                log.warning("telemetry_rates_refused", rate_hz=rate, error=str(exc), kind=exc.kind.value)
 
     async def _preflight(self) -> None:
         """Every check must pass before anything arms; the first failure names itself."""
@@ -258,6 +271,10 @@ class FlightDaemon(StopLadder):
         log.info("preflight_check", check=model_check.name, ok=model_check.ok, detail=model_check.detail)
         if not model_check.ok:
             raise PreflightError(model_check)
+        param_check = await self._check_parameters()
+        log.info("preflight_check", check=param_check.name, ok=param_check.ok, detail=param_check.detail)
+        if not param_check.ok:
+            raise PreflightError(param_check)
         deadline = time.monotonic() + cfg.vehicle.health_timeout_s
         while True:
             now = time.monotonic()
@@ -266,6 +283,11 @@ class FlightDaemon(StopLadder):
             if not failed:
                 for c in checks:
                     log.info("preflight_check", check=c.name, ok=True, detail=c.detail)
+                self._size_stale_odometry(now)
+                ground = self._set_ground()
+                if not ground.ok:
+                    raise PreflightError(ground)
+                log.info("preflight_check", check=ground.name, ok=True, detail=ground.detail)
                 self.recorder.event(now, "preflight", "all checks passed")
                 return
             hard = [c for c in failed if not c.retry]
@@ -279,9 +301,106 @@ class FlightDaemon(StopLadder):
         return [
             check_depth_frame(self.latest_depth.value, now, cfg.safety.stale_depth_s, self.preprocess_cfg),
             check_odometry(self.latest_odom.value, now, cfg.safety.stale_odometry_s),
+            check_odometry_rate(
+                measure_odometry_rate(self.odom_arrivals, now), cfg.safety.min_odometry_rate_hz
+            ),
             check_vehicle_ready(self.vehicle.state, allow_armed),
             check_start_inside(self.path.start_m, cfg.safety),
         ]
+
+    async def _check_parameters(self) -> PreflightCheck:
+        """PX4's parameters over MAVLink: a wrong required one refuses the flight with the list to
+        set; advice is logged as a warning (:mod:`quadnav_onboard.daemon.px4_params`)."""
+        if not self.cfg.vehicle.check_parameters:
+            return PreflightCheck("px4_parameters", True, "not checked (vehicle.check_parameters: false)")
+        if not isinstance(self.vehicle, Px4Setup):
+            return PreflightCheck("px4_parameters", True, "not checked: the link reads no parameters")
+        rules = parameter_rules(self.cfg)
+        values = await self.vehicle.read_parameters({r.name: r.kind for r in rules})
+        findings = judge_parameters(rules, values)
+        required = [f for f in findings if f.severity is Severity.REQUIRED]
+        advice = [f for f in findings if f.severity is Severity.ADVICE]
+        self.stats.px4_parameters = {"values": dict(values), "advice": [str(f) for f in advice],
+                                     "required": [str(f) for f in required]}
+        for f in advice:
+            log.warning("px4_parameter_advice", name=f.name, value=f.value, want=f.want)
+        if required:
+            listed = "; ".join(str(f) for f in required)
+            return PreflightCheck("px4_parameters", False, f"set on PX4: {listed}", retry=False)
+        return PreflightCheck("px4_parameters", True, f"{len(rules)} read, {len(advice)} advice")
+
+    def _size_stale_odometry(self, now: float) -> None:
+        """Size the in-flight stale-odometry limit from the stream measured now."""
+        rate = measure_odometry_rate(self.odom_arrivals, now)
+        limit = in_flight_stale_odometry_s(self.cfg.safety, rate)
+        self.safety = dataclasses.replace(self.cfg.safety, stale_odometry_s=limit)
+        self.stats.odometry = {
+            "requested_hz": self.cfg.vehicle.telemetry_rate_hz if self.cfg.odometry.kind == "px4" else None,
+            "measured_hz": None if rate is None else round(rate.rate_hz, 1),
+            "max_gap_ms": None if rate is None else round(rate.max_gap_s * 1e3, 1),
+            "stale_limit_s": round(limit, 3),
+        }
+        log.info("stale_odometry_limit", **self.stats.odometry)
+
+    def _set_ground(self) -> PreflightCheck:
+        """Measure the ground frame now, the vehicle standing on the ground (refused when PX4
+        reports it in the air)."""
+        raw = self.latest_odom_raw
+        if raw is None:
+            return PreflightCheck("ground", False, "no odometry sample to measure the ground from")
+        if self.vehicle.state.landed is False:
+            return PreflightCheck(
+                "ground", False, "PX4 reports the vehicle in the air: no ground to measure", retry=False
+            )
+        s = self.cfg.safety
+        px4 = None if self.cfg.odometry.kind == "px4" else np.asarray(self.vehicle.state.pos_world_m)
+        if px4 is not None and not np.all(np.isfinite(px4)):
+            px4 = np.asarray(raw.pos_world_m)  # no estimate from PX4 yet: assume its frame is the odometry's
+        frame = measure_ground(
+            raw.pos_world_m, px4, configured_z_m=s.ground_z_m if s.ground_reference == "configured" else None
+        )
+        self.ground_frame = frame
+        self.latest_odom.set(frame.to_world(raw))
+        self.stats.ground = frame.describe()
+        self.recorder.event(time.monotonic(), "ground_reference", str(frame.describe()))
+        return PreflightCheck(
+            "ground", True, f"{frame.source}: ground at z {frame.ground_z_m:+.2f} m of the odometry frame, "
+            f"PX4's frame {np.round(frame.px4_minus_world_m, 2).tolist()} m from the daemon's",
+        )
+
+    async def _start_offboard(self) -> None:
+        """Switch to OFFBOARD, retried (``vehicle.offboard_start_attempts``) while the setpoint
+        stream runs: PX4 SITL refused one start with NO_SETPOINT_SET after 64 setpoints."""
+        v = self.cfg.vehicle
+        for attempt in range(1, v.offboard_start_attempts + 1):
+            await self._fresh_setpoint()
+            try:
+                await self.vehicle.start_offboard()
+                if attempt > 1:
+                    self.stats.offboard_start_attempts = attempt
+                return
+            except VehicleError as exc:
+                retry = exc.kind in (VehicleErrorKind.REFUSED, VehicleErrorKind.TIMEOUT)
+                last = attempt == v.offboard_start_attempts
+                log.warning("offboard_start_refused", attempt=attempt, of=v.offboard_start_attempts,
+                            result=exc.result, kind=exc.kind.value, retry=retry and not last)
+                self.recorder.event(time.monotonic(), "offboard_start_refused", str(exc), attempt=attempt)
+                self.stats.offboard_start_attempts = attempt
+                if not retry or last or not self.streaming:
+                    raise
+                await asyncio.sleep(v.offboard_retry_s)
+
+    async def _fresh_setpoint(self) -> None:
+        """Have the streamer send a setpoint now (bounded by two periods). MAVSDK refuses a start
+        locally with NO_SETPOINT_SET when a heartbeat not in OFFBOARD arrived after its newest
+        setpoint (its offboard plugin then forgets the setpoint): starting right after one narrows
+        that window to the time between the two calls."""
+        sent = self.stats.setpoints
+        self.new_trajectory.set()
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(2.0 / self.cfg.vehicle.setpoint_rate_hz):
+                while self.stats.setpoints == sent:
+                    await asyncio.sleep(0.001)
 
     def _check_model(self) -> PreflightCheck:
         pol = self.policy
@@ -365,6 +484,12 @@ class FlightDaemon(StopLadder):
         odom = self.latest_odom.value
         assert odom is not None
         yaw0 = float(self.path.yaw_at(0.0))
+        if not self.streaming and not self.vehicle.state.armed:  # still on the ground: measure it now
+            check = self._set_ground()
+            if not check.ok:
+                raise PreflightError(check)
+            odom = self.latest_odom.value
+            assert odom is not None
         ground = np.asarray(odom.pos_world_m, dtype=np.float64)
         if not self.streaming:
             self.trajectory = RampTrajectory(
@@ -384,7 +509,7 @@ class FlightDaemon(StopLadder):
             await self.vehicle.arm()
             await self._await_state(lambda st: st.armed, "armed")
         if self.vehicle.state.mode != "OFFBOARD":
-            await self.vehicle.start_offboard()
+            await self._start_offboard()
             await self._await_state(lambda st: st.mode == "OFFBOARD", "in OFFBOARD")
         self.supervising = True
         ramp = RampTrajectory.takeoff(
@@ -397,7 +522,11 @@ class FlightDaemon(StopLadder):
         while True:
             pos = self.latest_odom.value.pos_world_m  # type: ignore[union-attr]
             done = time.monotonic() >= ramp.t_start_mono_s + ramp.duration_s
-            if done and float(np.linalg.norm(pos - self.path.start_m)) <= cfg.start_tolerance_m:
+            # PX4's land detector reports IN_AIR some time after the climb began (MAVSDK's landed
+            # state lagged the emulator's by up to ~0.9 s): a mission started before it would read
+            # "on the ground in the middle of the mission" as a crash.
+            airborne = self.vehicle.state.landed is not True
+            if done and airborne and float(np.linalg.norm(pos - self.path.start_m)) <= cfg.start_tolerance_m:
                 return
             if time.monotonic() > deadline:
                 self.request_stop(

@@ -99,7 +99,28 @@ class SafetyConfig:
     stale_depth_s: Annotated[float, pydantic.Field(gt=0, le=2)] = 0.3
     """Stop when the newest depth frame is older than this (s); in (0, 2]."""
     stale_odometry_s: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.1
-    """Stop when the newest odometry sample is older than this (s); in (0, 1]."""
+    """Stop when the newest odometry sample is older than this (s); in (0, 1]. In flight the limit
+    is at least ``stale_odometry_periods`` periods and twice the longest gap of the stream as
+    measured in preflight (``odometry_rate_check``), at most 1 s."""
+    stale_odometry_periods: Annotated[float, pydantic.Field(ge=1, le=20)] = 3.0
+    """The in-flight stale-odometry limit covers at least this many periods of the measured
+    odometry rate; in [1, 20]."""
+    min_odometry_rate_hz: Annotated[float, pydantic.Field(ge=1, le=1000)] = 20.0
+    """Preflight refuses (until it holds) an odometry stream slower than this, measured over the
+    last second (Hz); in [1, 1000]."""
+    ground_reference: Literal["takeoff", "configured"] = "takeoff"
+    """What z = 0 is for the altitude band, the geofence, the path and the filter's known floor:
+    takeoff: the ground the vehicle stands on, measured from the odometry right before arming
+    (PX4 on GPS height reports -0.4..+0.9 m on the ground); configured: ``ground_z_m``. Never the
+    estimator's origin."""
+    ground_z_m: Annotated[float, pydantic.Field(ge=-100, le=100)] = 0.0
+    """configured: height (m, in [-100, 100]) of the ground in the odometry source's frame."""
+    after_landing: Literal["wait_for_auto_disarm", "disarm"] = "wait_for_auto_disarm"
+    """Once landed and still armed: wait (bounded by ``auto_disarm_wait_s``) for PX4's own disarm
+    (COM_DISARM_LAND), then disarm if it did not come; or disarm at once."""
+    auto_disarm_wait_s: Annotated[float, pydantic.Field(gt=0, le=60)] = 5.0
+    """Longest wait (s) for PX4's auto-disarm after touchdown; in (0, 60]. The wait is
+    COM_DISARM_LAND (read in preflight) + 1 s when that is shorter."""
     link_timeout_s: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.5
     """Stop when nothing has been heard from the vehicle for this long (s); in (0, 5]."""
     inference_budget_s: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.25
@@ -144,6 +165,17 @@ class VehicleConfig:
     """How long (s) preflight waits for PX4 to report local position OK; in (0, 600]."""
     setpoint_rate_hz: Annotated[float, pydantic.Field(ge=2, le=100)] = 20.0
     """Rate (Hz) at which the daemon itself streams position setpoints, in [2, 100] (PX4 needs >= 2)."""
+    telemetry_rate_hz: Annotated[float, pydantic.Field(ge=10, le=250)] = 50.0
+    """Rate (Hz) asked of PX4 for ODOMETRY and LOCAL_POSITION_NED after connecting (MAVSDK's
+    telemetry rate setters; PX4 SITL's default on the API link is ~30 Hz); in [10, 250]."""
+    offboard_start_attempts: Annotated[int, pydantic.Field(ge=1, le=10)] = 3
+    """Tries of the switch to OFFBOARD, the setpoint stream running between them; in [1, 10]
+    (PX4 SITL refused one start in ten flights with NO_SETPOINT_SET)."""
+    offboard_retry_s: Annotated[float, pydantic.Field(gt=0, le=5)] = 0.5
+    """Wait (s) between OFFBOARD tries, in (0, 5]."""
+    check_parameters: bool = True
+    """Read PX4's parameters in preflight: refuse on a wrong one the flight needs (naming what to
+    set), warn on advice (docs/hardware.md, section "PX4 parameters")."""
 
 
 @dataclass(frozen=True)
@@ -229,8 +261,8 @@ class RecordConfig:
     depth_decimation: Annotated[int, pydantic.Field(ge=1, le=1000)] = 5
     """Record every N-th raw depth frame, N in [1, 1000] (network inputs are always recorded)."""
     writer: Literal["process", "thread"] = "process"
-    """Where the record is encoded and written: a child process (keeps JSON, compression and disk
-    work off the flight process's GIL) or a thread of the flight process."""
+    """Where the record is encoded and written: a child process (keeps protobuf encoding,
+    compression and disk work off the flight process's GIL) or a thread of the flight process."""
 
 
 @dataclass(frozen=True)

@@ -120,13 +120,50 @@ class StopLadder(Loops):
             log.warning("land_skipped", mode=self.vehicle.state.mode, detail="pilot took over during hold")
             return
         await self._ladder_step("land", self.vehicle.land)
-        await self._wait_landed()
-        if (
-            self.cfg.safety.disarm_on_abort
-            and reason is not StopReason.GOAL_REACHED
-            and self.vehicle.state.armed
-        ):
-            await self._ladder_step("disarm", self.vehicle.disarm)
+        landed = await self._wait_landed()
+        at_once = self.cfg.safety.disarm_on_abort and reason is not StopReason.GOAL_REACHED
+        await self._after_landing(landed, at_once)
+
+    async def _after_landing(self, landed: bool, at_once: bool) -> None:
+        """Landed but still armed: wait (bounded) for PX4's auto-disarm (COM_DISARM_LAND), else
+        disarm; or disarm at once (``safety.after_landing: disarm``, ``disarm_on_abort``). The
+        outcome goes into the summary's ``landing``."""
+        s = self.cfg.safety
+        st = self.vehicle.state
+        t0 = time.monotonic()
+        if not landed:
+            self.stats.landing = {"landed": False, "disarm": "still_armed" if st.armed else "auto"}
+            return
+        if st.armed and not at_once and s.after_landing == "wait_for_auto_disarm":
+            wait_s = self._auto_disarm_wait_s()
+            while st.armed and time.monotonic() - t0 < wait_s and self._link_alive():
+                await asyncio.sleep(0.05)
+        waited = round(time.monotonic() - t0, 2)
+        if not st.armed:
+            log.info("disarmed", by="PX4 (auto-disarm after landing)", waited_s=waited)
+            self.stats.landing = {"landed": True, "disarm": "auto", "waited_s": waited}
+            return
+        if not self._link_alive():
+            self.stats.landing = {"landed": True, "disarm": "still_armed", "waited_s": waited}
+            log.error("landed_armed", detail="the link fell silent before the disarm")
+            return
+        await self._ladder_step("disarm", self.vehicle.disarm)
+        deadline = time.monotonic() + self.cfg.vehicle.command_timeout_s
+        while st.armed and time.monotonic() < deadline and self._link_alive():
+            await asyncio.sleep(0.02)
+        outcome = "commanded" if not st.armed else "still_armed"
+        if st.armed:
+            log.error("landed_armed", detail="disarm not confirmed by telemetry")
+        self.stats.landing = {"landed": True, "disarm": outcome, "waited_s": waited}
+
+    def _auto_disarm_wait_s(self) -> float:
+        """How long to wait for PX4's auto-disarm: COM_DISARM_LAND (read in preflight) + 1 s,
+        at most ``safety.auto_disarm_wait_s``; 0 when PX4's auto-disarm is off."""
+        limit = self.cfg.safety.auto_disarm_wait_s
+        value = self.stats.px4_parameters.get("values", {}).get("COM_DISARM_LAND")  # type: ignore[union-attr]
+        if value is None or not math.isfinite(value):
+            return limit
+        return 0.0 if value <= 0 else min(limit, float(value) + 1.0)
 
     async def _ladder_step(self, name: str, fn: Callable[[], Any]) -> None:
         t = time.monotonic()
@@ -138,20 +175,22 @@ class StopLadder(Loops):
             log.error("ladder_failed", step=name, error=str(exc))
             self.recorder.event(time.monotonic(), "ladder_failed", f"{name}: {exc}")
 
-    async def _wait_landed(self) -> None:
+    async def _wait_landed(self) -> bool:
+        """Wait for touchdown (bounded by ``land_timeout_s``); True once on the ground."""
         deadline = time.monotonic() + self.cfg.safety.land_timeout_s
         while time.monotonic() < deadline:
             st = self.vehicle.state
             if not st.armed or st.landed:
                 log.info("landed", armed=st.armed)
                 self.recorder.event(time.monotonic(), "landed", "on the ground", armed=st.armed)
-                return
+                return True
             if not self._link_alive():
                 log.error("land_unconfirmed", detail="the vehicle's link fell silent while landing")
                 self.recorder.event(time.monotonic(), "release", "link silent while landing")
-                return
+                return False
             await asyncio.sleep(0.05)
         log.error("land_timeout", timeout_s=self.cfg.safety.land_timeout_s)
+        return False
 
     def _link_alive(self) -> bool:
         """Something was heard from the vehicle within ``safety.link_timeout_s``."""

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import math
 import time
+from collections import deque
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -20,6 +21,7 @@ import numpy as np
 
 from quadnav_onboard.daemon.config import FlightConfig
 from quadnav_onboard.daemon.decide import DecisionPath, PreparedFrame
+from quadnav_onboard.daemon.ground import GroundFrame
 from quadnav_onboard.daemon.stats import LatencyStats, Latest
 from quadnav_onboard.daemon.summary import NullNotifier
 from quadnav_onboard.daemon.supervisor import (
@@ -77,6 +79,18 @@ class RunStats:
         """Kernels that compiled a new signature after arming, and those signatures (none expected)."""
         self.stops_deferred_for_link = 0
         """Stops found while the link was quiet, held until the link's verdict."""
+        self.ground: dict[str, object] = {}
+        """The ground frame flown (``GroundFrame.describe``)."""
+        self.odometry: dict[str, float | None] = {}
+        """The odometry stream measured in preflight and the stale limit sized from it."""
+        self.px4_parameters: dict[str, object] = {}
+        """PX4's parameters read in preflight: {"values": {name: value}, "required": [...],
+        "advice": [...]} (the findings, as text)."""
+        self.offboard_start_attempts = 1
+        """Tries the switch to OFFBOARD took (more than 1: PX4 refused the first)."""
+        self.landing: dict[str, object] = {}
+        """How the flight ended on the ground after the ladder's land: {"landed": bool, "disarm":
+        "auto" | "commanded" | "still_armed", "waited_s": s}; empty when it did not land."""
 
     def count_decision(self, path: DecisionPath, frame_age_s: float) -> None:
         self.decision_paths[path] += 1
@@ -93,6 +107,15 @@ class Loops:
         self.notifier = notifier if notifier is not None else NullNotifier()
         self.latest_depth: Latest[DepthFrame] = Latest()
         self.latest_odom: Latest[OdometrySample] = Latest()
+        """The newest odometry sample, in the ground frame (:attr:`ground_frame`)."""
+        self.latest_odom_raw: OdometrySample | None = None
+        """The newest odometry sample in the source's own frame."""
+        self.odom_arrivals: deque[float] = deque(maxlen=512)
+        """Arrival times (monotonic s) of the newest odometry samples (the preflight rate check)."""
+        self.ground_frame = GroundFrame()
+        """The daemon's world frame (z = 0: the ground) against the odometry's and PX4's."""
+        self.safety = cfg.safety
+        """The in-flight limits: ``cfg.safety`` with the stale-odometry limit sized in preflight."""
         self.stop_event = asyncio.Event()
         self.new_trajectory = asyncio.Event()
         self.stop_reason: StopReason | None = None
@@ -258,13 +281,16 @@ class Loops:
         min_dt = 1.0 / self.cfg.odometry.forward_rate_hz
         t_fwd = -math.inf
         try:
-            async for s in self.odometry_source.samples():  # type: ignore[attr-defined]
+            async for raw in self.odometry_source.samples():  # type: ignore[attr-defined]
+                self.latest_odom_raw = raw
+                self.odom_arrivals.append(raw.t_arrival_mono_s)
+                s = self.ground_frame.to_world(raw)
                 self.latest_odom.set(s)
                 self.stats.odometry_samples += 1
                 self.recorder.odometry(s.t_arrival_mono_s, s.pos_world_m, s.quat_world_body, s.vel_world_m_s)
                 if fwd and s.t_arrival_mono_s - t_fwd >= min_dt and self.vehicle.state.connected:
                     t_fwd = s.t_arrival_mono_s
-                    await self._forward_vision(s)
+                    await self._forward_vision(raw)  # PX4 fuses the mocap frame itself
         except asyncio.CancelledError:
             raise
         except Exception as exc:
@@ -344,7 +370,7 @@ class Loops:
                 continue
             pos, vel, yaw = traj.sample(now)
             try:
-                await self.vehicle.set_setpoint(pos, vel, yaw)
+                await self.vehicle.set_setpoint(self.ground_frame.to_px4(pos), vel, yaw)
             except VehicleError as exc:
                 log.error("setpoint_failed", error=str(exc))
                 continue
@@ -419,7 +445,7 @@ class Loops:
             if not self.supervising or self.stop_reason is not None:
                 continue
             snap = self.snapshot(now)
-            found = check_in_flight(snap, self.cfg.safety)
+            found = check_in_flight(snap, self.safety)
             if self._defer_for_link(found, snap):
                 continue
             if found is None:
@@ -429,7 +455,7 @@ class Loops:
             if reason is StopReason.STALE_DEPTH:
                 threshold = snap.t_depth_mono_s + self.cfg.safety.stale_depth_s
             elif reason is StopReason.STALE_ODOMETRY:
-                threshold = snap.t_odom_mono_s + self.cfg.safety.stale_odometry_s
+                threshold = snap.t_odom_mono_s + self.safety.stale_odometry_s
             self.request_stop(reason, detail, threshold)
 
     def _defer_for_link(self, found: tuple[StopReason, str] | None, snap: FlightSnapshot) -> bool:
@@ -442,7 +468,7 @@ class Loops:
         commands); the link back means the stop found then (or, if none, streaming resumes).
         A crash is never held back."""
         if found is not None and found[0] not in (StopReason.CRASH, StopReason.LINK_LOST) and link_quiet(
-            snap, self.cfg.safety
+            snap, self.safety
         ):
             if self.deferred_stop is None:
                 self.deferred_stop = found

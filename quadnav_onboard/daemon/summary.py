@@ -63,8 +63,13 @@ class FlightSummary:
     model_sha256: str
     """SHA-256 of the checkpoint flown."""
     startup: dict[str, Any] = field(default_factory=dict)
-    """Start -> READY (s), preflight's warm-up (s), and the kernels compiled after arming (none
-    expected): {"ready_s": s, "warmup_s": s, "kernels_compiled_in_flight": {name: n}}."""
+    """Start -> READY (s), preflight's warm-up (s), the kernels compiled after arming (none
+    expected), the ground frame, the odometry stream and its stale limit, PX4's parameters and
+    the OFFBOARD tries: {"ready_s": s, "warmup_s": s, "kernels_compiled_in_flight": {name: n},
+    "ground": {...}, "odometry": {...}, "px4_parameters": {...}, "offboard_start_attempts": n}."""
+    landing: dict[str, Any] = field(default_factory=dict)
+    """After a land: {"landed": bool, "disarm": "auto" (PX4's COM_DISARM_LAND) | "commanded" |
+    "still_armed", "waited_s": s}; empty when the ladder did not land."""
 
     @classmethod
     def build(
@@ -110,7 +115,12 @@ class FlightSummary:
                 "ready_s": None if stats.ready_s is None else _r(stats.ready_s, 3),
                 "warmup_s": None if stats.warmup_s is None else _r(stats.warmup_s, 3),
                 "kernels_compiled_in_flight": dict(stats.kernels_compiled_in_flight),
+                "ground": dict(stats.ground),
+                "odometry": dict(stats.odometry),
+                "px4_parameters": dict(stats.px4_parameters),
+                "offboard_start_attempts": stats.offboard_start_attempts,
             },
+            landing=dict(stats.landing),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -146,6 +156,10 @@ class FlightSummary:
             lines.append(f"start -> ready: {st['ready_s']} s (warm-up {st['warmup_s']} s)")
         if st.get("kernels_compiled_in_flight"):
             lines.append(f"kernels compiled after arming: {st['kernels_compiled_in_flight']}")
+        if self.landing:
+            d = self.landing
+            lines.append(f"landing: landed {d.get('landed')}, disarm {d.get('disarm')} "
+                         f"(waited {d.get('waited_s', 0)} s)")
         if self.vision_forwards["failed"]:
             v = self.vision_forwards
             lines.append(f"vision forwards to PX4: {v['sent']} sent, {v['failed']} failed")

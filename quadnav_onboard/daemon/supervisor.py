@@ -27,6 +27,7 @@ __all__ = [
     "ExitCode",
     "FlightSnapshot",
     "FrozenPositionWatch",
+    "OdometryRate",
     "PreflightCheck",
     "PreflightError",
     "Response",
@@ -34,9 +35,12 @@ __all__ = [
     "check_depth_frame",
     "check_in_flight",
     "check_odometry",
+    "check_odometry_rate",
     "check_vehicle_ready",
     "crash_evidence",
+    "in_flight_stale_odometry_s",
     "link_quiet",
+    "measure_odometry_rate",
     "response_for",
 ]
 
@@ -353,6 +357,56 @@ def check_odometry(sample: OdometrySample | None, now_mono_s: float, max_age_s: 
     if abs(float(np.linalg.norm(q)) - 1.0) > 0.05:
         return PreflightCheck("odometry", False, f"quaternion {q.tolist()} is not unit length")
     return PreflightCheck("odometry", True, f"at {np.round(pos, 2).tolist()} m, {age * 1e3:.0f} ms old")
+
+
+@dataclass(frozen=True)
+class OdometryRate:
+    """The odometry stream as measured over preflight's window."""
+
+    rate_hz: float
+    """Samples per second over the window."""
+    max_gap_s: float
+    """Longest interval between two samples in the window (s)."""
+    n: int
+    """Samples in the window."""
+
+
+ODOMETRY_RATE_WINDOW_S = 1.0
+"""How far back (s) preflight measures the odometry stream."""
+
+
+def measure_odometry_rate(arrivals_mono_s: Sequence[float], now_mono_s: float,
+                          window_s: float = ODOMETRY_RATE_WINDOW_S) -> OdometryRate | None:
+    """Rate and longest gap of the samples that arrived in the last ``window_s`` (the gap from the
+    newest to now included); None with fewer than 3."""
+    t = np.asarray([a for a in arrivals_mono_s if now_mono_s - window_s <= a <= now_mono_s], dtype=np.float64)
+    if t.size < 3:
+        return None
+    gaps = np.diff(np.append(t, now_mono_s))
+    return OdometryRate(float((t.size - 1) / max(t[-1] - t[0], 1e-9)), float(gaps.max()), int(t.size))
+
+
+def check_odometry_rate(rate: OdometryRate | None, min_rate_hz: float) -> PreflightCheck:
+    """The odometry stream is at least ``min_rate_hz`` (time may fix it: PX4 applies a requested
+    rate within a second)."""
+    if rate is None:
+        return PreflightCheck("odometry_rate", False, f"fewer than 3 odometry samples in the last "
+                              f"{ODOMETRY_RATE_WINDOW_S:g} s")
+    detail = f"{rate.rate_hz:.1f} Hz, longest gap {rate.max_gap_s * 1e3:.0f} ms ({rate.n} samples)"
+    if rate.rate_hz < min_rate_hz:
+        return PreflightCheck("odometry_rate", False,
+                              f"{detail}: below safety.min_odometry_rate_hz {min_rate_hz:g}")
+    return PreflightCheck("odometry_rate", True, detail)
+
+
+def in_flight_stale_odometry_s(cfg: SafetyConfig, rate: OdometryRate | None) -> float:
+    """The in-flight stale-odometry limit: ``stale_odometry_s``, raised to cover
+    ``stale_odometry_periods`` periods and twice the longest gap measured in preflight (a 30 Hz
+    stream with 49 ms gaps needs 0.1 s), never above 1 s."""
+    if rate is None:
+        return cfg.stale_odometry_s
+    sized = max(cfg.stale_odometry_s, cfg.stale_odometry_periods / rate.rate_hz, 2.0 * rate.max_gap_s)
+    return float(min(sized, 1.0))
 
 
 def check_vehicle_ready(v: VehicleState, allow_armed: bool = False) -> PreflightCheck:

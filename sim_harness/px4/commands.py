@@ -9,6 +9,7 @@ frame with :mod:`quadnav_onboard.frames`.
 from __future__ import annotations
 
 import math
+import struct
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,6 +49,25 @@ _NAMES_BY_ID = {
 }
 
 
+_INT_TYPES = (m.MAV_PARAM_TYPE_INT8, m.MAV_PARAM_TYPE_INT16, m.MAV_PARAM_TYPE_INT32,
+              m.MAV_PARAM_TYPE_UINT8, m.MAV_PARAM_TYPE_UINT16, m.MAV_PARAM_TYPE_UINT32)
+
+
+def _wire_value(value: float, ptype: int) -> float:
+    """PARAM_VALUE.param_value as PX4 sends it: an integer parameter's bytes in the float field
+    (MAVLink's bytewise encoding, which MAVSDK expects from PX4), a float as itself."""
+    if ptype in _INT_TYPES:
+        return float(struct.unpack("<f", struct.pack("<i", int(value)))[0])
+    return float(value)
+
+
+def _from_wire(wire: float, ptype: int) -> float:
+    """The value of a PARAM_SET.param_value for a parameter of type ``ptype`` (bytewise ints)."""
+    if ptype in _INT_TYPES:
+        return float(struct.unpack("<i", struct.pack("<f", wire))[0])
+    return float(wire)
+
+
 def _finite(x: float) -> bool:
     return x is not None and isinstance(x, (int, float)) and math.isfinite(x)
 
@@ -64,12 +84,18 @@ class CommandHandler:
             "MIS_TAKEOFF_ALT": (cfg.takeoff_alt_m, m.MAV_PARAM_TYPE_REAL32),
             "COM_OF_LOSS_T": (cfg.com_of_loss_t_s, m.MAV_PARAM_TYPE_REAL32),
             # PX4 COM_OBL_RC_ACT: 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold.
-            "COM_OBL_RC_ACT": (5.0 if cfg.offboard_loss_action == "hold" else 4.0, m.MAV_PARAM_TYPE_INT32),
+            "COM_OBL_RC_ACT": ({"px4": 0.0, "hold": 5.0, "land": 4.0}[cfg.offboard_loss_action],
+                               m.MAV_PARAM_TYPE_INT32),
             "MPC_LAND_SPEED": (cfg.land_speed_m_s, m.MAV_PARAM_TYPE_REAL32),
             "COM_DISARM_LAND": (cfg.land_disarm_s, m.MAV_PARAM_TYPE_REAL32),
             "SYS_HITL": (0.0, m.MAV_PARAM_TYPE_INT32),
             "MAV_SYS_ID": (float(cfg.system_id), m.MAV_PARAM_TYPE_INT32),
             "EKF2_EV_CTRL": (15.0 if cfg.vision_only else 0.0, m.MAV_PARAM_TYPE_INT32),
+            # PX4 EKF2_HGT_REF: 0 baro, 1 GPS (SITL's default), 2 range, 3 vision.
+            "EKF2_HGT_REF": (3.0 if cfg.vision_only else 1.0, m.MAV_PARAM_TYPE_INT32),
+            "COM_RC_IN_MODE": (float(cfg.rc_in_mode), m.MAV_PARAM_TYPE_INT32),
+            "COM_FAIL_ACT_T": (cfg.failsafe_delay_s, m.MAV_PARAM_TYPE_REAL32),
+            "COM_OBC_LOSS_T": (cfg.companion_loss_s, m.MAV_PARAM_TYPE_REAL32),
         }
 
     # --- dispatch ------------------------------------------------------------------------------
@@ -87,6 +113,8 @@ class CommandHandler:
             self._set_mode_packed(msg.custom_mode, t)  # legacy message: no COMMAND_ACK
         elif kind in ("PARAM_REQUEST_READ", "PARAM_REQUEST_LIST", "PARAM_SET"):
             self._param(msg, link, t)
+        elif kind == "HEARTBEAT" and msg.type == m.MAV_TYPE_ONBOARD_CONTROLLER:
+            self.emu.vehicle.on_companion_heartbeat(t)
         elif kind == "TIMESYNC" and msg.tc1 == 0:
             self.emu.send(m.MAVLink_timesync_message(int(t * 1e9), msg.ts1), t, link)
 
@@ -199,7 +227,8 @@ class CommandHandler:
         mask = msg.type_mask
         pos_ned = np.array([msg.x, msg.y, msg.z], dtype=np.float64)
         vel_ned = np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64)
-        pos = ned_to_enu(pos_ned) if not mask & _POS_IGNORE and np.all(np.isfinite(pos_ned)) else None
+        pos = (ned_to_enu(pos_ned) - self.emu.local_offset_world_m
+               if not mask & _POS_IGNORE and np.all(np.isfinite(pos_ned)) else None)
         vel = ned_to_enu(vel_ned) if not mask & _VEL_IGNORE and np.all(np.isfinite(vel_ned)) else None
         yaw = float(yaw_ned_to_enu(msg.yaw)) if not mask & _YAW_IGNORE and _finite(msg.yaw) else None
         if pos is None and vel is None:
@@ -208,7 +237,8 @@ class CommandHandler:
 
     def _param_value(self, name: str, index: int, link: MavlinkLink, t: float) -> None:
         value, ptype = self.params[name]
-        msg = m.MAVLink_param_value_message(name.encode(), value, ptype, len(self.params), index)
+        wire = _wire_value(value, ptype)
+        msg = m.MAVLink_param_value_message(name.encode(), wire, ptype, len(self.params), index)
         self.emu.send(msg, t, link)
 
     def _param(self, msg: Any, link: MavlinkLink, t: float) -> None:
@@ -226,7 +256,8 @@ class CommandHandler:
             log.debug("px4_emulator_unknown_param", name=name)
             return  # PX4 stays silent for unknown parameters; MAVSDK times out on its side
         if kind == "PARAM_SET" and _finite(msg.param_value):
-            self.params[name] = (float(msg.param_value), self.params[name][1])
+            ptype = self.params[name][1]
+            self.params[name] = (_from_wire(float(msg.param_value), ptype), ptype)
             if name == "MIS_TAKEOFF_ALT":
                 self.emu.vehicle.takeoff_alt_m = float(msg.param_value)
         self._param_value(name, names.index(name), link, t)

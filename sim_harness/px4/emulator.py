@@ -66,6 +66,19 @@ def _default_start(world: World | None) -> NDArray[np.float64]:
     return np.array([first[0], first[1], _floor_z(world)])
 
 
+_SITL_GROUND_Z_RANGE_M = (-0.38, 0.33)
+"""PX4 SITL's local height on the ground before take-off over 11 starts (EKF2_HGT_REF=1, GPS)."""
+
+
+def _ground_offset(cfg: EmulatorConfig, rng: np.random.Generator) -> float:
+    if cfg.vision_only:
+        return 0.0
+    if cfg.ground_offset_m is not None:
+        return float(cfg.ground_offset_m)
+    lo, hi = _SITL_GROUND_Z_RANGE_M
+    return float(rng.uniform(lo, hi))
+
+
 def _floor_z(world: World | None) -> float:
     return 0.0 if world is None or world.floor_z_m is None else float(world.floor_z_m)
 
@@ -91,6 +104,12 @@ class Px4Emulator:
             start_pos_world_m, dtype=np.float64)
         self._start_yaw = float(start_yaw_rad)
         self._floor_z_m = _floor_z(world)
+        self.rng = np.random.default_rng(self.config.seed)
+        self.ground_offset_m = _ground_offset(self.config, self.rng)
+        """PX4's local height (up, m) of the ground: local z = world z - floor + this."""
+        self.local_offset_world_m = np.array([0.0, 0.0, self.ground_offset_m - self._floor_z_m])
+        """Estimator-local position minus world position (m): the estimator's origin is not the
+        world's (PX4 on GPS height); setpoints arrive in the local frame and are converted back."""
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -100,6 +119,8 @@ class Px4Emulator:
                                   _collision_fn(world, self.config.quad.radius_m), self._start_yaw)
         self._pose = self._make_pose(self._t0)
         self._frozen: VehicleSnapshot | None = None
+        self._grid: dict[str, float] = {}
+        """Each stream's regular send grid (monotonic s), before jitter."""
         self.commands = CommandHandler(self)
         self.seen_message_types: dict[str, int] = {}
         """Counts of every MAVLink message type received (to learn what a client sends)."""
@@ -192,7 +213,7 @@ class Px4Emulator:
             t_boot_ms=int((t - self._t0) * 1000), pos_world_m=v.pos_world_m.copy(),
             vel_world_m_s=v.vel_world_m_s.copy(), yaw_rad=v.yaw_rad, armed=v.armed, mode=v.mode,
             crashed=v.crashed, landed_state=v.landed_state, position_valid=v.position_valid(t),
-            home_world_m=v.home_world_m.copy(),
+            home_world_m=v.home_world_m.copy(), local_offset_m=self.local_offset_world_m,
         )
 
     def send(self, msg: object, t: float, link: MavlinkLink | None = None) -> None:
@@ -209,10 +230,20 @@ class Px4Emulator:
             return 1.0 / self.config.telemetry_hz
         return 1.0 / self.config.status_hz
 
+    def _next_due(self, name: str, interval: float, now: float) -> float:
+        """When ``name`` is next due: a regular grid of ``interval``, the fast messages each up to
+        ``telemetry_jitter`` of an interval late (PX4's scheduling on a loaded host)."""
+        grid = max(self._grid.get(name, now) + interval, now)
+        self._grid[name] = grid
+        if name in _FAST and self.config.telemetry_jitter > 0:
+            return grid + float(self.rng.uniform(0.0, self.config.telemetry_jitter * interval))
+        return grid
+
     def _run(self) -> None:
         dt = 1.0 / self.config.physics_hz
         t_next_physics = time.monotonic()
         next_send: dict[str, float] = {}
+        self._grid = {}
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -275,7 +306,7 @@ class Px4Emulator:
             interval = self.interval_s(name)
             if interval <= 0.0 or now < next_send.get(name, 0.0):
                 continue
-            next_send[name] = max(next_send.get(name, now) + interval, now)
+            next_send[name] = self._next_due(name, interval, now)
             if name in ("LOCAL_POSITION_NED", "ODOMETRY", "GLOBAL_POSITION_INT") and not snap.position_valid:
                 continue  # PX4 does not publish an invalid estimate
             self.send(build(), now)

@@ -7,7 +7,7 @@ World positions (x fwd, y left, z up) are converted to PX4's NED local frame onl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,6 +87,9 @@ class VehicleSnapshot:
     landed_state: str
     position_valid: bool
     home_world_m: NDArray[np.float64]
+    local_offset_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    """Estimator-local minus world position (m), shape (3,): the estimator's origin (PX4 on GPS
+    height: not the ground)."""
 
 
 def heartbeat(s: VehicleSnapshot) -> m.MAVLink_message:
@@ -129,7 +132,7 @@ def _attitude_world(s: VehicleSnapshot) -> NDArray[np.float64]:
 
 
 def local_position_ned(s: VehicleSnapshot) -> m.MAVLink_message:
-    p, v = enu_to_ned(s.pos_world_m), enu_to_ned(s.vel_world_m_s)
+    p, v = enu_to_ned(s.pos_world_m + s.local_offset_m), enu_to_ned(s.vel_world_m_s)
     return m.MAVLink_local_position_ned_message(s.t_boot_ms, *map(float, p), *map(float, v))
 
 
@@ -140,7 +143,7 @@ def attitude_quaternion(s: VehicleSnapshot) -> m.MAVLink_message:
 
 def odometry(s: VehicleSnapshot) -> m.MAVLink_message:
     """ODOMETRY in LOCAL_NED with the velocity in the body FRD frame (as PX4 sends it)."""
-    p = enu_to_ned(s.pos_world_m)
+    p = enu_to_ned(s.pos_world_m + s.local_offset_m)
     yaw_ned = float(yaw_enu_to_ned(s.yaw_rad))
     v_ned = enu_to_ned(s.vel_world_m_s)
     c, sn = math.cos(yaw_ned), math.sin(yaw_ned)
@@ -186,7 +189,7 @@ def global_position_int(s: VehicleSnapshot, cfg: EmulatorConfig) -> m.MAVLink_me
 
 def home_position(s: VehicleSnapshot, cfg: EmulatorConfig) -> m.MAVLink_message:
     lat, lon, alt = world_to_global(s.home_world_m, cfg)
-    p = enu_to_ned(s.home_world_m)
+    p = enu_to_ned(s.home_world_m + s.local_offset_m)
     return m.MAVLink_home_position_message(
         int(lat * 1e7), int(lon * 1e7), int(alt * 1000), *map(float, p), [1.0, 0.0, 0.0, 0.0],
         0.0, 0.0, 0.0, s.t_boot_ms * 1000,

@@ -93,6 +93,11 @@ class Px4Vehicle:
         self._touchdown_since_s: float | None = None
         self._has_flown = False
         self._t_start_s = t_mono_s
+        self._offboard_refusals_left = config.offboard_refusals
+        self._failsafe_land_at_s: float | None = None
+        """When the offboard-loss failsafe's hold ends in its land (px4 action); None when idle."""
+        self._companion_heard_s: float | None = None
+        self._companion_lost = False
 
     # --- queries -------------------------------------------------------------------------------
     @property
@@ -161,6 +166,9 @@ class Px4Vehicle:
             return CommandResult(True)
         if mode == "OFFBOARD" and not self.setpoint_fresh(t, self.cfg.offboard_stream_window_s):
             return self._refuse(t, "mode_denied", "Switching to Offboard denied: no setpoint stream")
+        if mode == "OFFBOARD" and self._offboard_refusals_left > 0:
+            self._offboard_refusals_left -= 1
+            return self._refuse(t, "mode_denied", "Switching to Offboard denied: no setpoint set")
         if mode in _POSITION_MODES | {"TAKEOFF"} and not self.position_valid(t):
             return self._refuse(t, "mode_denied", f"Switching to {mode} denied: no local position")
         if mode == "TAKEOFF":
@@ -192,6 +200,11 @@ class Px4Vehicle:
     def on_setpoint(self, sp: Setpoint) -> None:
         self._setpoint = sp
 
+    def on_companion_heartbeat(self, t: float) -> None:
+        """A HEARTBEAT from an onboard controller (the companion computer's MAVSDK)."""
+        self._companion_heard_s = t
+        self._companion_lost = False
+
     def on_vision(self, t: float) -> None:
         self._last_vision_mono_s = t
 
@@ -216,11 +229,18 @@ class Px4Vehicle:
     def _failsafes(self, t: float) -> None:
         in_air = self.armed and not self._on_floor()
         if self.mode == "OFFBOARD" and not self.setpoint_fresh(t, self.cfg.com_of_loss_t_s):
-            action = "LAND" if self.cfg.offboard_loss_action == "land" else "HOLD"
-            if action == "HOLD" and not self.position_valid(t):
-                action = "LAND"
-            self._event(t, "failsafe", f"Failsafe: offboard setpoints lost, switching to {action}", 3)
-            self._enter_mode(t, action)
+            self._offboard_lost(t)
+        if self._failsafe_land_at_s is not None:
+            if self.mode != "HOLD" or not self.armed:  # the pilot (or a client) took over
+                self._failsafe_land_at_s = None
+            elif t >= self._failsafe_land_at_s:
+                self._failsafe_land_at_s = None
+                self._event(t, "failsafe", "Failsafe: landing", 4)
+                self.land(t)
+        heard = self._companion_heard_s
+        if heard is not None and not self._companion_lost and t - heard > self.cfg.companion_loss_s:
+            self._companion_lost = True
+            self._event(t, "companion_lost", "Connection to mission computer lost", 4)
         if in_air and self.mode in _POSITION_MODES | {"TAKEOFF"} and not self.position_valid(t):
             self._event(t, "failsafe", "Failsafe: no local position, switching to LAND", 3)
             self._enter_mode(t, "LAND")
@@ -229,6 +249,23 @@ class Px4Vehicle:
             idle_s > self.cfg.preflight_disarm_s
         ):
             self.disarm(t, reason="auto-disarm: no takeoff (COM_DISARM_PRFLT)")
+
+    def _offboard_lost(self, t: float) -> None:
+        """The offboard-loss failsafe. px4 (PX4 v1.16 SITL, no RC): announce, hold for
+        COM_FAIL_ACT_T, then land (Position mode, COM_OBL_RC_ACT=0, needs manual control); the
+        auto-disarm follows the touchdown. hold / land: that mode at once (idealised)."""
+        action = self.cfg.offboard_loss_action
+        if action == "px4":
+            self._event(t, "failsafe", "Failsafe activated", 2)
+            if self.position_valid(t) and self.cfg.failsafe_delay_s > 0:
+                self._enter_mode(t, "HOLD")
+                self._failsafe_land_at_s = t + self.cfg.failsafe_delay_s
+            else:
+                self.land(t)
+            return
+        mode = "LAND" if action == "land" or not self.position_valid(t) else "HOLD"
+        self._event(t, "failsafe", f"Failsafe: offboard setpoints lost, switching to {mode}", 3)
+        self._enter_mode(t, mode)
 
     def _target(self, t: float, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, float]:
         """Position (m) and velocity feed-forward (m/s) targets, world frame, and the yaw target."""
