@@ -38,6 +38,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --dry-run: run the sim's vehicle, camera and mocap inside the daemon's process "
         "(for tests; the default runs each as its own process, as on a vehicle)",
     )
+    p.add_argument(
+        "--px4-sitl",
+        nargs="?",
+        const=14550,
+        type=int,
+        metavar="PORT",
+        help="with --dry-run: fly the PX4 SITL you started (the config's vehicle.url, e.g. "
+        "config/px4-sitl.yaml) through the world; the sim camera (and mocap) render from the state "
+        "PX4 reports on UDP PORT (default 14550, PX4's GCS link; sys_test/README.md)",
+    )
     p.add_argument("--model", metavar="CKPT.pt", help="checkpoint to fly (overrides model_path)")
     p.add_argument("--json", action="store_true", help="print the flight summary as one JSON object")
     p.add_argument(
@@ -83,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fail("--world needs --dry-run")
     if args.in_process and not args.dry_run:
         return _fail("--in-process needs --dry-run")
+    if args.px4_sitl is not None and (not args.dry_run or args.in_process or not args.config):
+        return _fail("--px4-sitl needs --dry-run and --config (e.g. config/px4-sitl.yaml), not --in-process")
     if not args.config and not args.dry_run:
         return _fail("give --config FLIGHT.yaml, or --dry-run to fly the simulator")
     source = args.config or "<embedded defaults/sim.yaml>"
@@ -174,7 +186,8 @@ def _fly(
             from quadnav_onboard.daemon.dryrun import DryRun, ProcessDryRun
 
             wiring = DryRun if args.in_process else ProcessDryRun
-            sim = stack.enter_context(wiring(cfg, args.world))
+            sitl = None if args.px4_sitl is None else {"port": args.px4_sitl}
+            sim = stack.enter_context(wiring(cfg, args.world, sitl=sitl))
             cfg = sim.cfg
             parts = sim.parts()
             meta["world"] = str(sim.world_path)

@@ -3,6 +3,7 @@
     python -m sim_harness.sidecar vehicle --spec '{"world": "...", "truth": "...", "api_port": 14640}'
     python -m sim_harness.sidecar camera  --spec '{"world": "...", "truth": "...", "socket": "/run/x.sock"}'
     python -m sim_harness.sidecar mocap   --spec '{"truth": "...", "command_port": 1510, "data_port": 1511}'
+    python -m sim_harness.sidecar bridge  --spec '{"world": "...", "truth": "...", "port": 14550}'
 
 * ``vehicle``: the emulated PX4 (MAVLink 2 over UDP to ``api_port``); it owns the vehicle's true
   state and writes it into the shared truth block (:mod:`sim_harness.truth`) every physics tick.
@@ -11,6 +12,11 @@
   (:mod:`quadnav_onboard.sources.socket_depth`), dropping frames the reader is not ready for.
 * ``mocap``: an emulated OptiTrack Motive (NatNet 3.0, unicast; :mod:`sim_harness.natnet`)
   streaming the true pose, optionally with noise, latency and dropouts.
+* ``bridge``: instead of ``vehicle``, when the vehicle is a PX4 SITL the user runs: listens
+  (never sends) on a UDP port PX4 streams to (its GCS link, 14550 by default, or a MAVLink
+  instance of its own, ``mavlink start -u 14582 -o 14541``) and writes PX4's own reported state
+  into the truth block (:class:`sim_harness.px4.bridge.SitlBridge`), so the camera and mocap render
+  from where PX4 says the vehicle is. Ready once PX4 reported a position.
 
 Each part compiles (or loads from cache) its kernels, then prints one JSON line
 ``{"ready": true, ...}`` on stdout and logs to stderr; it exits on SIGTERM/SIGINT or when its
@@ -124,6 +130,71 @@ def run_vehicle(spec: dict[str, Any], stop: _Exit) -> int:
             seen = len(events)
     finally:
         emu.stop()
+        truth.close()
+    return 0
+
+
+# --- bridge (a PX4 SITL's reported state as the truth) ------------------------------------------
+
+
+def run_bridge(spec: dict[str, Any], stop: _Exit) -> int:
+    from quadnav_onboard.logs import get_logger
+    from sim_harness.px4.bridge import SitlBridge
+    from sim_harness.px4.emulator import _collision_fn
+    from sim_harness.px4.mavlink_io import mavlink2
+    from sim_harness.quad import QuadParams
+    from sim_harness.truth import TruthBlock
+
+    log = get_logger("quadnav-sim.bridge")
+    world = _load_world(spec)
+    collide = _collision_fn(world, QuadParams().radius_m)
+    if collide is not None:  # compile (or load) the collision kernel now
+        collide(np.zeros(3), np.zeros(3))
+    bridge = SitlBridge(world.floor_z_m or 0.0, system_id=spec.get("system_id"), collide=collide)
+    truth = TruthBlock.attach(spec["truth"])
+    host, port = str(spec.get("host", "127.0.0.1")), int(spec.get("port", 14550))
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        log.error("bridge_port_busy", host=host, port=port, error=str(exc),
+                  hint="QGroundControl listens on 14550: close it, or give PX4 a MAVLink instance of "
+                  "the bridge's own (sys_test/README.md)")
+        return 3
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    wait_s = float(spec.get("wait_s", 60.0))
+    t0 = time.monotonic()
+    ready = False
+    try:
+        while not stop.due():
+            readable, _, _ = select.select([sock], [], [], 0.2)
+            if not ready and bridge.pose is None and time.monotonic() - t0 > wait_s:
+                log.error("bridge_no_px4", host=host, port=port, waited_s=wait_s,
+                          hint="start PX4 SITL (make px4_sitl sihsim_quadx) before the flight")
+                return 3
+            if not readable:
+                continue
+            data = sock.recv(65535)
+            now = time.monotonic()
+            try:
+                messages = parser.parse_buffer(data) or []
+            except mavlink2.MAVError:
+                continue
+            for msg in messages:
+                if msg.get_type() != "BAD_DATA" and bridge.on_message(msg, now):
+                    p = bridge.pose
+                    assert p is not None
+                    truth.write(p.pos_world_m, p.vel_world_m_s, p.quat_world_body, p.t_mono_s,
+                                bridge.crashed, bridge.armed)
+            if not ready and bridge.pose is not None:
+                ready = True
+                _ready(role="bridge", port=port, system_id=bridge.system_id,
+                       start_m=[round(float(v), 3) for v in bridge.pose.pos_world_m],
+                       ground_up_m=round(float(bridge.ground_up_m or 0.0), 3))
+    finally:
+        sock.close()
         truth.close()
     return 0
 
@@ -281,7 +352,7 @@ def run_mocap(spec: dict[str, Any], stop: _Exit) -> int:
     return 0
 
 
-_ROLES = {"vehicle": run_vehicle, "camera": run_camera, "mocap": run_mocap}
+_ROLES = {"vehicle": run_vehicle, "camera": run_camera, "mocap": run_mocap, "bridge": run_bridge}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,6 +12,10 @@ The parts start together (the camera's render kernels are the slowest to warm) a
 ready on its stdout; each logs to ``<run dir>/<part>.log``. On exit every part gets SIGTERM, then
 SIGKILL, and the shared block and socket are removed. A part also exits by itself when the process
 that started it goes away.
+
+With ``bridge=`` the vehicle is a PX4 SITL the user runs, not the emulator: the ``bridge`` part
+takes its place and writes PX4's own reported state into the shared block, and the camera (and
+mocap) render from it (``parts=("bridge", "camera")``; the daemon connects to the SITL itself).
 """
 
 from __future__ import annotations
@@ -33,9 +37,11 @@ from typing import Any
 from sim_harness.px4.ports import free_udp_port
 from sim_harness.truth import TruthBlock
 
-__all__ = ["PART_NAMES", "Part", "VehicleSide", "VehicleSideError"]
+__all__ = ["BRIDGE_PART", "PART_NAMES", "Part", "VehicleSide", "VehicleSideError"]
 
 PART_NAMES = ("vehicle", "camera", "mocap")
+BRIDGE_PART = "bridge"
+"""The part that stands in for ``vehicle`` when the vehicle is a PX4 SITL (see ``bridge=``)."""
 
 _TICKS_S = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
@@ -80,13 +86,21 @@ class VehicleSide:
         emulator_config: str | Path | None = None,
         scenario: str | Path | None = None,
         gcs_port: int | None = None,
-        parts: tuple[str, ...] = PART_NAMES,
+        parts: tuple[str, ...] | None = None,
         ready_timeout_s: float = 180.0,
         run_dir: str | Path | None = None,
+        bridge: dict[str, Any] | None = None,
     ) -> None:
-        unknown = set(parts) - set(PART_NAMES)
-        if unknown or "vehicle" not in parts:
-            raise ValueError(f"parts must include 'vehicle' and be among {PART_NAMES}, got {parts}")
+        """``bridge``: settings of the bridge part (``port`` PX4 streams to, ``host``,
+        ``system_id``, ``wait_s``): fly a PX4 SITL; ``parts`` then defaults to bridge + camera."""
+        if parts is None:
+            parts = (BRIDGE_PART, "camera") if bridge is not None else PART_NAMES
+        head = BRIDGE_PART if bridge is not None else "vehicle"
+        allowed = (head, *PART_NAMES[1:])
+        unknown = set(parts) - set(allowed)
+        if unknown or head not in parts:
+            raise ValueError(f"parts must include {head!r} and be among {allowed}, got {parts}")
+        self._bridge = dict(bridge) if bridge is not None else None
         self.world_path = Path(world_path).resolve()
         self.api_port = api_port if api_port is not None else free_udp_port()
         self._camera = dict(camera or {})
@@ -95,7 +109,7 @@ class VehicleSide:
         self._emulator_config = str(emulator_config) if emulator_config is not None else None
         self._scenario = str(scenario) if scenario is not None else None
         self._gcs_port = gcs_port
-        self._wanted = tuple(p for p in PART_NAMES if p in parts)
+        self._wanted = tuple(p for p in allowed if p in parts)
         self.ready_timeout_s = float(ready_timeout_s)
         self._own_run_dir = run_dir is None
         self.run_dir = Path(run_dir) if run_dir is not None else Path(tempfile.mkdtemp(prefix="quadnav-sim-"))
@@ -141,6 +155,7 @@ class VehicleSide:
                        "socket": str(self.run_dir / "depth.sock"), **self._camera},
             "mocap": {**common, "command_port": free_udp_port(), "data_port": free_udp_port(),
                       **self._mocap},
+            BRIDGE_PART: {**common, "world": str(self.world_path), **(self._bridge or {})},
         }
         return {name: specs[name] for name in self._wanted}
 

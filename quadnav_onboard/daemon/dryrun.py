@@ -42,6 +42,7 @@ class _SimWiring:
         emulator: dict[str, Any] | None = None,
         mocap: dict[str, Any] | None = None,
         seed: int = 0,
+        sitl: dict[str, Any] | None = None,
     ) -> None:
         from sim_harness.world import load_world, paper_world_path
 
@@ -51,6 +52,8 @@ class _SimWiring:
         self._emulator_kwargs = emulator or {}
         self._mocap_kwargs = mocap or {}
         self.seed = seed
+        self.sitl = sitl
+        """Settings of the bridge to a PX4 SITL the user runs (``port``); None: the emulator."""
 
     @property
     def path(self) -> RoughPath:
@@ -90,9 +93,10 @@ class ProcessDryRun(_SimWiring):
                 odometry, kind="mocap", system_type="optitrack", host=host, port_command=port,
                 rotation_world_from_mocap=ROTATION_WORLD_FROM_MOTIVE, translation_world_m=(0.0, 0.0, 0.0),
             )
+        vehicle = cfg.vehicle if self.sitl is not None else dataclasses.replace(cfg.vehicle, url=side.url)
         self.cfg = dataclasses.replace(
             cfg,
-            vehicle=dataclasses.replace(cfg.vehicle, url=side.url),
+            vehicle=vehicle,
             depth=dataclasses.replace(d, kind="socket", socket_path=side.depth_socket),
             odometry=odometry,
         )
@@ -107,12 +111,14 @@ class ProcessDryRun(_SimWiring):
         from sim_harness.vehicle_side import VehicleSide
 
         d = cfg.depth
+        head = "vehicle" if self.sitl is None else "bridge"  # a PX4 SITL: its reported state
         return VehicleSide(
             self.world_path,
             camera={"width": d.width, "height": d.height, "fps": d.fps, "seed": self.seed},
             mocap={"rigid_body": cfg.odometry.rigid_body, "seed": self.seed, **self._mocap_kwargs},
             emulator=self._emulator_kwargs,
-            parts=("vehicle", "camera", "mocap") if mocap else ("vehicle", "camera"),
+            parts=(head, "camera", "mocap") if mocap else (head, "camera"),
+            bridge=self.sitl,
         ).start()
 
     def __exit__(self, *exc: object) -> None:
