@@ -153,8 +153,7 @@ def run_bridge(spec: dict[str, Any], stop: _Exit) -> int:
     bridge = SitlBridge(world.floor_z_m or 0.0, system_id=spec.get("system_id"), collide=collide)
     truth = TruthBlock.attach(spec["truth"])
     host, port = str(spec.get("host", "127.0.0.1")), int(spec.get("port", 14550))
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # no SO_REUSEADDR: never share a port
     try:
         sock.bind((host, port))
     except OSError as exc:
