@@ -43,8 +43,10 @@ from quadnav_onboard.sources.base import DepthFrame, OdometrySample
 __all__ = ["FLOOR_Z_M", "Decider", "Decision", "DecisionPath", "Motion", "PreparedFrame"]
 
 FLOOR_Z_M = 0.0
-"""The floor's height in the odometry's world frame (m): the supervisor's altitude band
-(``safety.altitude_floor_m``) already reads world z as height above it."""
+"""The floor's height in the daemon's world frame (m). The daemon shifts odometry into the frame of
+the ground the vehicle stood on at take-off, or of ``safety.ground_z_m`` (``daemon/ground.py``),
+never the estimator's origin. So world z is height above that ground, as the supervisor's altitude
+band (``safety.altitude_floor_m``) reads it too."""
 
 DecisionPath = Literal["prepared", "waited", "full"]
 """How a step got its prepared frame: ready at the step boundary; being prepared at the boundary
