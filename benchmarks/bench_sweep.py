@@ -7,8 +7,8 @@ evaluated on the ten paper worlds (10 trials per world, seed 1000), two at a tim
 machine. Runs, each a fresh process timed from start to exit:
 
 - ``pool``: ``python -m sim_harness.rl.sweep --jobs 2`` (the dependency-free process pool);
-- ``ray``: ``quadnav-sim sweep`` with its defaults (scores reported every 500 episodes: 2
-  episodes per training world, what ASHA needs);
+- ``ray``: ``quadnav-sim sweep`` with its defaults (scores reported every 500 episodes, one
+  episode per training world: what ASHA reads; ``--eval-trials N`` passes N);
 - ``ray_no_midrun_eval``: ``quadnav-sim sweep --eval-every 0`` (the pool's work exactly).
 
 The target: ``ray`` within 15 % of ``pool``. Record the machine load beside the figures: on a
@@ -45,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=4, help="trials (seeds 0..N-1)")
     p.add_argument("--jobs", type=int, default=2, help="trials at once (the pool's processes, Ray's CPUs)")
     p.add_argument("--skip-no-eval", action="store_true", help="leave out the ray_no_midrun_eval run")
+    p.add_argument("--eval-trials", type=int, default=None, help="the ray run's --eval-trials")
     p.add_argument("--json", default=None, help="write the figures here")
     args = p.parse_args(argv)
     seeds = [str(s) for s in range(args.seeds)]
@@ -56,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
                      "--trials", "10", "--spec", f"bench:episodes={args.episodes},seed={'+'.join(seeds)}"],
             "ray": [py, "-m", "sim_harness.cli", "sweep", "--out", f"{tmp}/ray", "--name", "bench",
                     "--set", f"episodes={args.episodes}", "--seeds", *seeds, "--final-trials", "10",
-                    "--num-cpus", str(args.jobs), "--no-progress"],
+                    "--num-cpus", str(args.jobs), "--no-progress",
+                    *(["--eval-trials", str(args.eval_trials)] if args.eval_trials else [])],
         }  # fmt: skip
         if not args.skip_no_eval:
             cases["ray_no_midrun_eval"] = [*cases["ray"], "--eval-every", "0"]

@@ -58,7 +58,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--grace-period", type=int, default=500, help="episodes before ASHA may stop a trial")
     p.add_argument("--eval-every", type=int, default=500, help="episodes between scores reported in training")
-    p.add_argument("--eval-trials", type=int, default=2, help="episodes per training world per evaluation")
+    p.add_argument(
+        "--eval-trials", type=int, default=1, help="episodes per training world per evaluation (default 1)"
+    )
     p.add_argument("--final-trials", type=int, default=10, help="final evaluation trials per paper world")
     p.add_argument("--dry-run", action="store_true", help="print the trials of the grid and exit")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

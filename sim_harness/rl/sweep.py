@@ -74,7 +74,7 @@ def evaluate_run(cfg: TrainConfig, result: TrainResult, trials: int, started: fl
     final model on the ten paper worlds (``trials`` per world, seed 1000) by part (train worlds,
     held-out, all). ``started``: ``time.monotonic()`` when the job began."""
     from quadnav_onboard.policy import Policy
-    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn, summarize
+    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn, scores, summarize
     from sim_harness.world import TEST_WORLD_IDS, TRAIN_WORLD_IDS, load_world, paper_world_path
 
     policy = Policy.from_path(result.model_path)
@@ -97,6 +97,7 @@ def evaluate_run(cfg: TrainConfig, result: TrainResult, trials: int, started: fl
         "eval_trials": trials,
         "eval_all": summarize(rows),
         "eval_train_worlds": summarize([r for r in rows if r.world in names_train]),
+        "scores_train_worlds": scores([r for r in rows if r.world in names_train]),
         "eval_held_out": summarize([r for r in rows if r.world in names_test]),
         "eval_rows": [r.to_dict() for r in rows],
     }

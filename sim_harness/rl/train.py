@@ -201,12 +201,15 @@ def train(
     progress: bool = True,
     kill_after_episodes: int | None = None,
     hooks: Sequence[TrainHook] = (),
+    evaluate_at_end: bool = True,
 ) -> TrainResult:
     """Train (or resume) one run; returns its directory, final model and throughput figures.
 
     ``kill_after_episodes`` (tests) stops abruptly after that many finished episodes, without the
     final checkpoint, as a killed process would. A KeyboardInterrupt (Ctrl-C) during the episodes
     writes a checkpoint of the episodes finished so far and raises :class:`TrainingInterrupted`.
+    ``evaluate_at_end=False`` leaves out the evaluation after the last episode (a caller that
+    evaluates the final model itself, as a sweep trial does).
     """
     if resume is not None:
         run_dir = Path(resume)
@@ -392,7 +395,7 @@ def train(
     bar.close()
     final = checkpoint(final=True)
     wall = time.monotonic() - t0  # training only: the closing evaluation is not in the throughput
-    if cfg.eval_every:
+    if cfg.eval_every and evaluate_at_end:
         evaluation(final)
     if tb is not None:
         tb.close()

@@ -63,8 +63,9 @@ class SweepOptions:
     """The sweep's folder (absolute; on a cluster, a folder every node sees at the same path)."""
     eval_every: int = 500
     """Episodes between the scores each trial reports while it trains (0 = only at the end)."""
-    eval_trials: int = 2
-    """Episodes per training world in each of those evaluations."""
+    eval_trials: int = 1
+    """Episodes per training world in each of those evaluations (each costs ~1 s of a trial's
+    ~45 s at 2 per world: benchmarks/bench_sweep.py)."""
     final_trials: int = 10
     """Evaluation trials per paper world (1-10) of each final model (seed 1000, as the pool)."""
     scheduler: Literal["fifo", "asha"] = "fifo"
@@ -155,17 +156,14 @@ def run_trial(config: dict[str, Any], options: SweepOptions) -> None:
     hooks = [_Reporter(cfg.episodes)]
     if earlier is not None:
         log.info("trial_resumes", trial=trial_id, run_dir=str(earlier))
-        result = train(resume=earlier, progress=False, hooks=hooks)
+        result = train(resume=earlier, progress=False, hooks=hooks, evaluate_at_end=False)
     else:
-        result = train(cfg, progress=False, hooks=hooks)
+        result = train(cfg, progress=False, hooks=hooks, evaluate_at_end=False)
     record = evaluate_run(cfg, result, options.final_trials, started)
     record["trial_id"] = trial_id
     (result.run_dir / "sweep_record.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
-    last = json.loads((result.run_dir / "evals.json").read_text()) if options.eval_every else []
-    scores = {k: v for k, v in (last[-1] if last else {}).items() if k not in ("episode", "env_steps")}
-    if not scores:  # no evaluation during training: the final one on the training worlds stands in
-        t = record["eval_train_worlds"]
-        scores = {"goal_rate": t["success_rate"], "collision_free_rate": t["collision_free_rate"]}
+    # the last scores: the final model's on the paper's training worlds (its full evaluation)
+    scores = record["scores_train_worlds"]
     summary = {k: v for k, v in record.items() if k != "eval_rows"}
     tune.report(
         {
