@@ -120,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
     except SweepUnavailable as exc:
         print(f"quadnav-sim sweep: {exc}", file=sys.stderr)
         return EXIT_NO_EXTRA
+    except ConnectionError as exc:  # --address: no Ray cluster there
+        return _usage(f"--address {args.address}: {exc} (start one with `ray start --head`)")
     except (ConfigError, ValueError, FileNotFoundError) as exc:
         return _usage(str(exc))
     for rec in outcome.records:

@@ -100,7 +100,12 @@ class SweepOutcome:
     best: dict[str, Any] | None
 
 
-def _require_ray() -> None:
+def _require_ray(address: str | None = None) -> None:
+    if address and (Path.home() / ".ray" / "auth_token").is_file():
+        # a cluster from `ray start` asks for the token every node keeps in ~/.ray/auth_token; a
+        # driver that joins it must say it uses one, before Ray is imported (it reads this then);
+        # RAY_AUTH_MODE=disabled in the environment where the cluster runs without
+        os.environ.setdefault("RAY_AUTH_MODE", "token")
     try:
         import ray  # noqa: F401
         from ray import tune  # noqa: F401
@@ -278,7 +283,7 @@ def absolute_paths(spec: SweepSpec) -> SweepSpec:
 
 def run_sweep(spec: SweepSpec, options: SweepOptions, *, progress: bool = True) -> SweepOutcome:
     """Run every trial of ``spec`` (ASHA may stop some early); write and return the tables."""
-    _require_ray()
+    _require_ray(options.address)
     from ray import tune
 
     spec = absolute_paths(spec)
@@ -301,7 +306,7 @@ def run_sweep(spec: SweepSpec, options: SweepOptions, *, progress: bool = True) 
 def resume_sweep(out_dir: str | Path, *, progress: bool = True, address: str | None = None) -> SweepOutcome:
     """Continue a killed sweep in ``out_dir``: finished trials stay, the others run (again, each
     resuming its own training run from its last checkpoint), failed ones stay failed."""
-    _require_ray()
+    _require_ray(address)
     from ray import tune
 
     out = Path(out_dir).resolve()
