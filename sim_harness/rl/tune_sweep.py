@@ -193,8 +193,12 @@ def _init_ray(options: SweepOptions) -> None:
     if options.address:
         ray.init(address=options.address, include_dashboard=False, configure_logging=False)
     else:
+        # "local": a Ray of its own, even where `ray start` runs a cluster on this machine
         ray.init(
-            num_cpus=options.num_cpus or os.cpu_count() or 1, include_dashboard=False, configure_logging=False
+            address="local",
+            num_cpus=options.num_cpus or os.cpu_count() or 1,
+            include_dashboard=False,
+            configure_logging=False,
         )
 
 
