@@ -151,11 +151,11 @@ class TrainConfig:
     keep_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
     """Episodes between model snapshots kept as ``checkpoints/ep{N}.pt`` (0 = none), so a
     checkpoint can be chosen afterwards by an evaluation on the training worlds. Range: [0, 10^7]."""
-    eval_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
+    eval_every: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] | None = None
     """Episodes between greedy evaluations of the current network on the training worlds, and one
-    at the end (0 = none): scores in ``evals.json``/``evals.csv`` and TensorBoard, and what a
+    at the end (None = none): scores in ``evals.json``/``evals.csv`` and TensorBoard, and what a
     sweep's early stopping reads. Uses its own seeded envs: training is the same with or without.
-    Range: [0, 10^7]."""
+    Range: [1, 10^7]."""
     eval_trials: Annotated[int, pydantic.Field(ge=1, le=1000)] = 2
     """Episodes per training world in each of those evaluations. Range: [1, 1000]."""
     tensorboard: bool = True

@@ -153,7 +153,7 @@ def run_trial(config: dict[str, Any], options: SweepOptions) -> None:
     limit_threads(1, 1)
     trial_id = tune.get_context().get_trial_id()
     trial_out = Path(options.out_dir) / "runs" / trial_id
-    overrides = {**config, "out_dir": str(trial_out), "eval_every": options.eval_every}
+    overrides = {**config, "out_dir": str(trial_out), "eval_every": options.eval_every or None}
     overrides["eval_trials"] = options.eval_trials
     cfg = load_train_config(overrides, source=f"sweep trial {trial_id}")
     started = time.monotonic()
