@@ -61,6 +61,10 @@ __all__ = ["FlightDaemon"]
 
 log = get_logger("quadnav.daemon")
 
+GO_RECHECK_S = 1.5
+"""At the go, how long (s) a failed input check that time may fix has to pass again before the
+flight is refused (the odometry rate is measured over the last second)."""
+
 
 class _SensorOpenError(RuntimeError):
     """A depth or odometry source failed to open (before anything armed)."""
@@ -500,9 +504,7 @@ class FlightDaemon(StopLadder):
         # The go may come minutes after preflight: every input must still be healthy to fly. (A
         # pilot who armed and switched to OFFBOARD as the go has armed the vehicle on purpose.)
         pilot_armed = self.vehicle.state.armed
-        failed = [c for c in self._input_checks(time.monotonic(), allow_armed=pilot_armed) if not c.ok]
-        if failed:
-            raise PreflightError(failed[0])
+        await self._recheck_inputs(pilot_armed)
         self._kernels_at_arming = jit.signature_counts()  # nothing may compile from here on
         self.flying = True
         if not self.vehicle.state.armed:
@@ -533,6 +535,19 @@ class FlightDaemon(StopLadder):
                     StopReason.TAKEOFF_TIMEOUT, f"path start not reached in {cfg.takeoff_timeout_s} s"
                 )
                 return
+            await asyncio.sleep(0.05)
+
+    async def _recheck_inputs(self, pilot_armed: bool) -> None:
+        """The input checks again, at the go. A check that time may fix (a late sample, a dip in
+        the odometry rate measured over the last second) gets ``GO_RECHECK_S`` to pass again; one
+        that time cannot fix, or still failing then, refuses the flight before anything arms."""
+        deadline = time.monotonic() + GO_RECHECK_S
+        while True:
+            failed = [c for c in self._input_checks(time.monotonic(), allow_armed=pilot_armed) if not c.ok]
+            if not failed:
+                return
+            if any(not c.retry for c in failed) or time.monotonic() > deadline:
+                raise PreflightError(failed[0])
             await asyncio.sleep(0.05)
 
     async def _await_state(self, pred: Callable[[Any], bool], what: str) -> None:
