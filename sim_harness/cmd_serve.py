@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.config import ConfigError, load_yaml_config
     from sim_harness.px4 import EmulatorConfig
     from sim_harness.px4.scenario import load_scenario
-    from sim_harness.vehicle_side import VehicleSide, VehicleSideError
+    from sim_harness.vehicle_side import StartCancelled, VehicleSide, VehicleSideError
     from sim_harness.world import WorldError, load_world, resolve_world_arg
 
     try:
@@ -112,15 +112,18 @@ def run(args: argparse.Namespace) -> int:
     )
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    print(f"quadnav-sim serve: the sim's vehicle side in world '{world.name}' ({world_path})")
+    print(f"  vehicle (emulated PX4): udpin://0.0.0.0:{api_port}   (MAVSDK; vehicle.url)", flush=True)
     try:
         try:
-            side.start()
+            side.start(cancel=stop)  # a signal while the parts warm up stops them all
+        except StartCancelled:
+            print("quadnav-sim serve: stopped", flush=True)
+            return 0
         except VehicleSideError as exc:
             print(f"quadnav-sim serve: {exc}", file=sys.stderr)
             return 2
         start = side.parts["vehicle"].info.get("start_m")
-        print(f"quadnav-sim serve: the sim's vehicle side in world '{world.name}' ({world_path})")
-        print(f"  vehicle (emulated PX4): udpin://0.0.0.0:{api_port}   (MAVSDK; vehicle.url)")
         if gcs_port:
             print(f"  ground station: UDP {gcs_port} on 127.0.0.1 (QGroundControl listens there)")
         if "camera" in side.parts:

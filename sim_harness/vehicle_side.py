@@ -29,6 +29,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +49,10 @@ _TICKS_S = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 class VehicleSideError(RuntimeError):
     """A part did not start (the message carries the end of its log)."""
+
+
+class StartCancelled(VehicleSideError):
+    """The start was cancelled (a signal) before every part was ready."""
 
 
 @dataclass
@@ -159,14 +164,16 @@ class VehicleSide:
         }
         return {name: specs[name] for name in self._wanted}
 
-    def start(self) -> VehicleSide:
+    def start(self, cancel: threading.Event | None = None) -> VehicleSide:
+        """Start every part and wait until each is ready; ``cancel`` set meanwhile (a signal)
+        stops them all and raises :class:`StartCancelled`."""
         t0 = time.monotonic()
         self.truth = TruthBlock.create()
         try:
             for name, spec in self.specs().items():
                 self.parts[name] = self._spawn(name, spec)
             for part in self.parts.values():
-                part.info = self._await_ready(part, t0 + self.ready_timeout_s)
+                part.info = self._await_ready(part, t0 + self.ready_timeout_s, cancel)
         except BaseException:
             self.stop()
             raise
@@ -182,10 +189,12 @@ class VehicleSide:
             )
         return Part(name, process, log_path)
 
-    def _await_ready(self, part: Part, deadline: float) -> dict[str, Any]:
+    def _await_ready(self, part: Part, deadline: float, cancel: threading.Event | None) -> dict[str, Any]:
         assert part.process.stdout is not None
         fd = part.process.stdout
         while True:
+            if cancel is not None and cancel.is_set():
+                raise StartCancelled(f"sim {part.name}: start cancelled")
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise VehicleSideError(f"sim {part.name}: not ready within {self.ready_timeout_s:g} s"
