@@ -15,16 +15,16 @@ import dataclasses
 import fnmatch
 import json
 import math
-import types
 import typing
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import pytest
 import yaml
 
 from quadnav_onboard.config import ConfigError, PlannerConfig, parse_config
+from quadnav_onboard.config import _unwrap as unwrap_annotation
 from quadnav_onboard.daemon.config import FlightConfig, load_flight_config
 from quadnav_onboard.preprocess import PreprocessConfig
 from quadnav_onboard.shield import ShieldConfig
@@ -111,19 +111,7 @@ field's own range; a check across fields (a geofence corner above its opposite, 
 the floor, a path leaving the geofence) may still refuse it, naming the keys involved."""
 
 
-def _unwrap(tp: Any) -> Any:
-    """The type under ``Annotated[...]`` and ``X | None``."""
-    while True:
-        origin = typing.get_origin(tp)
-        if origin is Annotated:
-            tp = typing.get_args(tp)[0]
-        elif origin in (typing.Union, types.UnionType):
-            args = [a for a in typing.get_args(tp) if a is not type(None)]
-            if len(args) != 1:
-                return tp
-            tp = args[0]
-        else:
-            return tp
+_unwrap = unwrap_annotation  # the type under ``Annotated[...]`` and ``X | None``
 
 
 def numeric_leaves(tp: Any, key: tuple[str | int, ...] = ()) -> Iterator[tuple[tuple[str | int, ...], type]]:
