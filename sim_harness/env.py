@@ -34,11 +34,20 @@ import pydantic
 from numpy.typing import NDArray
 
 from quadnav_onboard.config import PrimitiveConfig
-from quadnav_onboard.frames import body_to_world, world_to_body
 from quadnav_onboard.preprocess import PreprocessConfig
-from quadnav_onboard.primitives import bezier_position, bezier_velocity
-from quadnav_onboard.reward import RewardParams, reward
+from quadnav_onboard.reward import RewardParams
 from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_at_scale, shield_verdict
+from quadnav_onboard.step import (
+    OUTCOMES,
+    EpisodeLimits,
+    Outcome,
+    StepInputs,
+    StepRecord,
+    finish_step,
+    primitive_targets,
+    push_history,
+    step_inputs,
+)
 from sim_harness.collision import clearance_m, collides, sweep_collides
 from sim_harness.quad import QuadParams, QuadState, track
 from sim_harness.render import render_inputs
@@ -59,8 +68,6 @@ __all__ = [
     "rel_pos_bound_m",
 ]
 
-OUTCOMES = ("goal", "crash", "deviation", "timeout")
-"""Why an episode ends; ``None`` while it runs."""
 
 
 @dataclass(frozen=True)
@@ -96,15 +103,6 @@ class EnvConfig:
     shield: ShieldConfig = field(default_factory=ShieldConfig)
     """Depth safety filter (off = the paper): when on, ``allowed`` holds the primitives it lets
     the planner choose at the next decision."""
-
-
-def _outcome_code(collided: NDArray, deviated: NDArray, goal: NDArray, timeout: NDArray) -> NDArray[np.int8]:
-    """0 = running, 1..4 = index in OUTCOMES + 1, first true reason wins in the documented order."""
-    code = np.zeros(collided.shape, dtype=np.int8)
-    code = np.where(timeout, 4, code)
-    code = np.where(goal, 1, code)
-    code = np.where(deviated, 3, code)
-    return np.where(collided, 2, code).astype(np.int8)
 
 
 class VecQuadNavEnv:
@@ -158,35 +156,25 @@ class VecQuadNavEnv:
         """Shield clearance (m) of every primitive at the next decision (cap if the shield is off)."""
         self.allowed = np.ones((n, self.prims.n_actions), dtype=bool)
         """Primitives the shield allows at the next decision (all if it is off)."""
+        self._limits = EpisodeLimits(config.goal_radius_m, config.reward.max_deviation_m, config.max_steps)
+        self.last_step: StepRecord | None = None
+        """The last :meth:`step`'s record of the envs that ran (their ids: ``last_step_ids``)."""
+        self.last_step_ids = np.zeros(0, dtype=np.int64)
 
     # -- per-world helpers ---------------------------------------------------------------------
     def _groups(self, mask: NDArray[np.bool_]) -> list[tuple[World, NDArray[np.int64]]]:
         ids = np.flatnonzero(mask)
         return [(self.worlds[w], ids[self.world_idx[ids] == w]) for w in np.unique(self.world_idx[ids])]
 
-    def _path_terms(self, world: World, pos: NDArray, k: NDArray) -> dict[str, NDArray]:
-        path = world.path
-        arc, dev = path.closest(pos)
-        yaw = path.yaw_at(arc)
-        sp = path.setpoint_at(k * self.prims.duration_s)
-        return {
-            "arc": arc,
-            "dev": dev,
-            "yaw": yaw,
-            "sp": sp,
-            "goal_dist": np.linalg.norm(path.goal_m - pos, axis=-1),
-        }
-
     def _observe(
-        self, ids: NDArray[np.int64], world: World, yaw: NDArray, sp: NDArray
-    ) -> tuple[NDArray, NDArray, NDArray]:
-        """Network inputs, relative setpoints and the shield's depth view (the nearest surface per
-        cell with ``depth_pooling: min``, else the network inputs themselves)."""
+        self, ids: NDArray[np.int64], world: World, yaw: NDArray
+    ) -> tuple[NDArray, NDArray]:
+        """Network inputs and the shield's depth view (the nearest surface per cell with
+        ``depth_pooling: min``, else the network inputs themselves) of the quads ``ids``."""
         shield = self.config.shield
         nearest = self.memory is not None and shield.depth_pooling == "min"
         depth, near = render_inputs(world, self.pos_m[ids], yaw, self.config.preprocess, nearest=nearest)
-        rel = world.path.relative_state(sp, self.pos_m[ids], yaw).astype(np.float32)
-        return depth, rel, depth if near is None else near
+        return depth, depth if near is None else near
 
     def _update_shield(self, ids: NDArray[np.int64], depth: NDArray, yaw: NDArray, new: bool) -> None:
         """Remember the new views of ``ids`` (the shield's depth view of :meth:`_observe`) and
@@ -258,20 +246,21 @@ class VecQuadNavEnv:
         self.episode_return[ids] = 0.0
         self.done[ids] = False
         for world, sel in self._groups(mask):
-            t = self._path_terms(world, self.pos_m[sel], self.steps[sel])
-            depth, rel, view = self._observe(sel, world, t["yaw"], t["sp"])
+            first = step_inputs(world.path, self.steps[sel], self.prims.duration_s, self.pos_m[sel])
+            depth, view = self._observe(sel, world, first.yaw_rad)
             self.depth[sel] = depth[:, None]
-            self.rel[sel] = rel[:, None]
-            self._update_shield(sel, view, t["yaw"], new=True)
+            self.rel[sel] = first.rel_pos_body_m[:, None]
+            self._update_shield(sel, view, first.yaw_rad, new=True)
         return self.depth, self.rel
 
     def step(self, actions: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, dict[str, Any]]:
-        """Advance every running env by one primitive.
+        """Advance every running env by one primitive (:mod:`quadnav_onboard.step`).
 
         Returns ``(depth, rel_pos, reward (N,), terminated (N,), truncated (N,), info)``; ``info``
         holds arrays ``progress_m``, ``time_s``, ``deviation_m``, ``outcome`` (object: None or a
         string of :data:`OUTCOMES`), ``episode_return``, ``world_index``, ``steps`` and, with
-        autoreset, ``final_depth``/``final_rel_pos``.
+        autoreset, ``final_depth``/``final_rel_pos``. :attr:`last_step` holds the step's
+        :class:`~quadnav_onboard.step.StepRecord` of the envs that ran (``last_step_ids``).
         """
         actions = np.asarray(actions, dtype=np.int64).reshape(self.n_envs)
         run = ~self.done
@@ -284,19 +273,16 @@ class VecQuadNavEnv:
         groups = self._groups(run)
         all_ids = np.flatnonzero(run)
         yaw0 = np.zeros(n)
-        d_prev = np.zeros(n)
-        for world, ids in groups:  # path terms at the start of the step
-            pos0 = self.pos_m[ids]
-            yaw0[ids] = world.path.heading_at(pos0)
-            sp0 = world.path.setpoint_at(self.steps[ids] * prims.duration_s)
-            d_prev[ids] = np.linalg.norm(sp0 - pos0, axis=-1)
-        # the primitive, in the heading frame, from the last commanded end point (C1); one batched
-        # dynamics call for every running env
+        before: dict[int, StepInputs] = {}
+        pos0 = self.pos_m.copy()
+        for g, (world, ids) in enumerate(groups):  # the step's inputs, where each quad is now
+            before[g] = step_inputs(world.path, self.steps[ids], prims.duration_s, self.pos_m[ids])
+            yaw0[ids] = before[g].yaw_rad
+        # the primitive from the last commanded end point (C1); one batched dynamics call for all
         yaw = yaw0[all_ids]
-        v0_h = world_to_body(self.cmd_vel_m_s[all_ids], yaw)
-        ctrl = prims.control_points(actions[all_ids], v0_h)  # (m, 4, 3)
-        targets = self.cmd_pos_m[all_ids] + body_to_world(bezier_position(ctrl, self._u), yaw)  # (K, m, 3)
-        target_vel = body_to_world(bezier_velocity(ctrl, self._u, prims.duration_s), yaw)
+        targets, target_vel = primitive_targets(
+            prims, actions[all_ids], self.cmd_pos_m[all_ids], self.cmd_vel_m_s[all_ids], yaw, self._u
+        )  # (K, m, 3)
         state, trail_all = track(
             QuadState(self.pos_m[all_ids], self.vel_m_s[all_ids]), targets, target_vel, cfg.quad
         )
@@ -304,34 +290,39 @@ class VecQuadNavEnv:
         self.vel_m_s[all_ids] = state.vel_m_s
         self.cmd_pos_m[all_ids] = targets[-1]
         self.cmd_vel_m_s[all_ids] = target_vel[-1]
+        steps_before = self.steps.copy()
         self.steps[all_ids] += 1
         col = np.searchsorted(all_ids, np.arange(n))  # env id -> column in trail_all
-        for world, ids in groups:
-            path = world.path
+        records = []
+        for g, (world, ids) in enumerate(groups):
             trail = trail_all[:, col[ids]]
             collided = sweep_collides(world, trail, cfg.quad.radius_m)
             if collided.any():  # a crashed quad stops where it first touched
                 self._stop_at_contact(world, ids, collided, trail)
-            pos = self.pos_m[ids]
-            k1 = self.steps[ids]
-            t = self._path_terms(world, pos, k1)
-            d_now = np.linalg.norm(t["sp"] - pos, axis=-1)
-            deviated = t["dev"] > cfg.reward.max_deviation_m
-            goal = (t["goal_dist"] <= cfg.goal_radius_m) | (t["arc"] >= path.length_m - 1e-9)
-            timeout = k1 >= cfg.max_steps
-            code[ids] = _outcome_code(collided, deviated, goal, timeout)
-            rew[ids] = reward(d_prev[ids], d_now, deviated, collided, cfg.reward)
-            progress[ids] = t["arc"]
-            deviation[ids] = t["dev"]
-            depth, rel, view = self._observe(ids, world, t["yaw"], t["sp"])
-            self.depth[ids] = np.concatenate([self.depth[ids, 1:], depth[:, None]], axis=1)
-            self.rel[ids] = np.concatenate([self.rel[ids, 1:], rel[:, None]], axis=1)
-            self._update_shield(ids, view, t["yaw"], new=False)
+            after = step_inputs(world.path, self.steps[ids], prims.duration_s, self.pos_m[ids])
+            rec = finish_step(
+                before[g], after, step=steps_before[ids], action=actions[ids], q_values=None,
+                pos_world_m=pos0[ids], end_pos_world_m=self.pos_m[ids], collided=collided,
+                path=world.path, limits=self._limits, reward_params=cfg.reward,
+                shield_allowed=self.allowed[ids] if self.memory is not None else None,
+                shield_clearance_m=self.clearance_m[ids] if self.memory is not None else None,
+                n_actions=prims.n_actions,
+            )
+            records.append((ids, rec))
+            code[ids] = rec.outcome
+            rew[ids] = rec.reward
+            progress[ids] = rec.progress_m
+            deviation[ids] = rec.deviation_m
+            depth, view = self._observe(ids, world, after.yaw_rad)
+            self.depth[ids] = push_history(self.depth[ids], depth)
+            self.rel[ids] = push_history(self.rel[ids], after.rel_pos_body_m)
+            self._update_shield(ids, view, after.yaw_rad, new=False)
+        self._set_last_step(records)
         self.episode_return[run] += rew[run]
-        terminated = run & (code >= 1) & (code <= 3)
-        truncated = run & (code == 4)
+        terminated = run & (code >= Outcome.GOAL) & (code <= Outcome.DEVIATION)
+        truncated = run & (code == Outcome.TIMEOUT)
         ended = terminated | truncated
-        outcome = np.array([None if c == 0 else OUTCOMES[c - 1] for c in code], dtype=object)
+        outcome = np.array([Outcome(c).label for c in code], dtype=object)
         info: dict[str, Any] = {
             "progress_m": progress,
             "time_s": self.steps * prims.duration_s,
@@ -349,6 +340,19 @@ class VecQuadNavEnv:
             if ended.any():
                 self.reset(ended)
         return self.depth, self.rel, rew, terminated, truncated, info
+
+    def _set_last_step(self, records: list[tuple[NDArray[np.int64], StepRecord]]) -> None:
+        """One record of the step for every env that ran, in env order."""
+        if not records:
+            self.last_step, self.last_step_ids = None, np.zeros(0, dtype=np.int64)
+            return
+        ids = np.concatenate([i for i, _ in records])
+        order = np.argsort(ids, kind="stable")
+        merged = {}
+        for f in dataclasses.fields(StepRecord):
+            parts = [getattr(r, f.name) for _, r in records]
+            merged[f.name] = None if parts[0] is None else np.concatenate(parts)[order]
+        self.last_step, self.last_step_ids = StepRecord(**merged), ids[order]
 
 
 def rel_pos_bound_m(worlds: Sequence[World], config: EnvConfig) -> float:

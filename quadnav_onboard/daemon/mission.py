@@ -1,10 +1,8 @@
-"""Pure mission geometry: the step semantics shared with training, and setpoint trajectories.
+"""Pure mission geometry: the flight's view of one step, and setpoint trajectories.
 
-Step k (k = 0, 1, ...), exactly as in the RL environment: the moving setpoint is
-``path.setpoint_at(k * duration_s)``; the heading frame is the path's yaw at the quad's progress
-(closest path point, as in ``sim_harness.env``); the
-planner's position input is ``path.relative_state(setpoint, pos, yaw)``; the chosen primitive
-starts at the previous primitive's *commanded* end point with the previous end velocity (C1).
+The step itself is :mod:`quadnav_onboard.step`, the code the training env runs too; this module
+holds its one-vehicle views (:func:`step_inputs`, :func:`goal_reached`, :class:`ActivePrimitive`)
+and the trajectories the setpoint streamer samples between decisions.
 Positions world frame (x forward, y left, z up), metres; velocities m/s; times seconds.
 """
 
@@ -18,7 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from quadnav_onboard.frames import body_to_world, quat_to_yaw, world_to_body
+from quadnav_onboard import step
+from quadnav_onboard.frames import body_to_world, quat_to_yaw
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.primitives import PrimitiveSet
 
@@ -34,7 +33,8 @@ __all__ = [
 
 @dataclass(frozen=True)
 class StepInputs:
-    """The planner's inputs at one step boundary."""
+    """The planner's inputs at one step boundary, for the one vehicle flown
+    (:class:`quadnav_onboard.step.StepInputs` with N = 1)."""
 
     setpoint_world_m: NDArray[np.float64]
     """Moving setpoint (world, m), shape (3,)."""
@@ -44,22 +44,20 @@ class StepInputs:
     """Setpoint minus quad in the heading frame (m), shape (3,): the network's position input."""
     distance_m: float
     """|setpoint - quad| (m): the reward's d_t."""
+    batch: step.StepInputs
+    """The same inputs as the step module computed them (N = 1), for :func:`step.finish_step`."""
 
 
 def step_inputs(path: RoughPath, k: int, duration_s: float, pos_world_m: ArrayLike) -> StepInputs:
     """State of step ``k`` for a quad measured at ``pos_world_m`` (world, m)."""
-    pos = np.asarray(pos_world_m, dtype=np.float64)
-    sp = path.setpoint_at(k * duration_s)
-    yaw = float(path.heading_at(pos))
-    rel = path.relative_state(sp, pos, yaw)
-    return StepInputs(sp, yaw, rel, float(np.linalg.norm(sp - pos)))
+    b = step.step_inputs(path, k, duration_s, pos_world_m)
+    yaw, d = float(b.yaw_rad[0]), float(b.distance_m[0])
+    return StepInputs(b.setpoint_world_m[0], yaw, b.rel_pos_body_m[0], d, b)
 
 
 def goal_reached(path: RoughPath, pos_world_m: ArrayLike, goal_radius_m: float) -> bool:
     """Within ``goal_radius_m`` of the goal, or progress at (or past) the path's length."""
-    pos = np.asarray(pos_world_m, dtype=np.float64)
-    near = float(np.linalg.norm(pos - path.goal_m)) <= goal_radius_m
-    return near or float(path.progress_m(pos)) >= path.length_m - 1e-9
+    return bool(step.goal_reached(path, step.step_inputs(path, 0, 0.0, pos_world_m), goal_radius_m)[0])
 
 
 @dataclass(frozen=True)
@@ -79,14 +77,13 @@ class ActivePrimitive:
 
     def sample(self, t_mono_s: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Commanded (position world m, velocity world m/s, yaw rad) at ``t_mono_s``; clamps at the end."""
-        v0 = world_to_body(self.start_vel_world_m_s, self.yaw_rad)
         t = min(max(t_mono_s - self.t_start_mono_s, 0.0), self.primitives.duration_s)
-        disp, vel = self.primitives.sample(self.action, v0, t)
-        return (
-            self.start_world_m + body_to_world(disp, self.yaw_rad),
-            body_to_world(vel, self.yaw_rad),
-            self.yaw_rad,
+        u = np.array([[t / self.primitives.duration_s]])
+        pos, vel = step.primitive_targets(
+            self.primitives, [self.action], self.start_world_m[None], self.start_vel_world_m_s[None],
+            [self.yaw_rad], u,
         )
+        return pos[0, 0], vel[0, 0], self.yaw_rad
 
     @property
     def end_world_m(self) -> NDArray[np.float64]:
