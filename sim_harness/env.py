@@ -105,6 +105,10 @@ class EnvConfig:
     the planner choose at the next decision."""
 
 
+_VEC3 = ("setpoint_world_m", "rel_pos_body_m")
+"""The :class:`~quadnav_onboard.step.StepInputs` fields that are 3-vectors."""
+
+
 class VecQuadNavEnv:
     """N navigation episodes stepped together; worlds sampled per episode from ``worlds``.
 
@@ -160,6 +164,9 @@ class VecQuadNavEnv:
         self.last_step: StepRecord | None = None
         """The last :meth:`step`'s record of the envs that ran (their ids: ``last_step_ids``)."""
         self.last_step_ids = np.zeros(0, dtype=np.int64)
+        self._inputs = {f.name: np.zeros((n, 3) if f.name in _VEC3 else n)
+                        for f in dataclasses.fields(StepInputs)}
+        """Each env's inputs of its next step (the last step's end, or the episode's start)."""
 
     # -- per-world helpers ---------------------------------------------------------------------
     def _groups(self, mask: NDArray[np.bool_]) -> list[tuple[World, NDArray[np.int64]]]:
@@ -247,6 +254,7 @@ class VecQuadNavEnv:
         self.done[ids] = False
         for world, sel in self._groups(mask):
             first = step_inputs(world.path, self.steps[sel], self.prims.duration_s, self.pos_m[sel])
+            self._keep_inputs(sel, first)
             depth, view = self._observe(sel, world, first.yaw_rad)
             self.depth[sel] = depth[:, None]
             self.rel[sel] = first.rel_pos_body_m[:, None]
@@ -275,8 +283,8 @@ class VecQuadNavEnv:
         yaw0 = np.zeros(n)
         before: dict[int, StepInputs] = {}
         pos0 = self.pos_m.copy()
-        for g, (world, ids) in enumerate(groups):  # the step's inputs, where each quad is now
-            before[g] = step_inputs(world.path, self.steps[ids], prims.duration_s, self.pos_m[ids])
+        for g, (_, ids) in enumerate(groups):  # the step's inputs: where the last step ended
+            before[g] = StepInputs(**{k: v[ids] for k, v in self._inputs.items()})
             yaw0[ids] = before[g].yaw_rad
         # the primitive from the last commanded end point (C1); one batched dynamics call for all
         yaw = yaw0[all_ids]
@@ -300,6 +308,7 @@ class VecQuadNavEnv:
             if collided.any():  # a crashed quad stops where it first touched
                 self._stop_at_contact(world, ids, collided, trail)
             after = step_inputs(world.path, self.steps[ids], prims.duration_s, self.pos_m[ids])
+            self._keep_inputs(ids, after)
             rec = finish_step(
                 before[g], after, step=steps_before[ids], action=actions[ids], q_values=None,
                 pos_world_m=pos0[ids], end_pos_world_m=self.pos_m[ids], collided=collided,
@@ -340,6 +349,10 @@ class VecQuadNavEnv:
             if ended.any():
                 self.reset(ended)
         return self.depth, self.rel, rew, terminated, truncated, info
+
+    def _keep_inputs(self, ids: NDArray[np.int64], inputs: StepInputs) -> None:
+        for k, v in self._inputs.items():
+            v[ids] = getattr(inputs, k)
 
     def _set_last_step(self, records: list[tuple[NDArray[np.int64], StepRecord]]) -> None:
         """One record of the step for every env that ran, in env order."""

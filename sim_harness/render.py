@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from quadnav_onboard.frames import pixel_slopes, quat_to_rotmat, rotmat_yaw
 from quadnav_onboard.jit import CAN_CACHE
-from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig
+from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig, depth_inputs_mm
 from sim_harness.noise import DepthNoise, apply_depth_noise
 from sim_harness.world import Geometry, World
 
@@ -314,23 +314,10 @@ def _to_depth(t, min_r, max_r, out):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _pool_normalized(t, ss, min_r, max_r, norm_min, norm_max, nearest, out):  # pragma: no cover - compiled
-    """Camera depth rules then preprocessing (invalid -> norm_max, clip, /norm_max) on each ray, then
-    per ss x ss block the mean or, with ``nearest``, the least value (the nearest surface)."""
-    inv = 1.0 / norm_max if nearest else 1.0 / (ss * ss * norm_max)
-    for n in range(out.shape[0]):
-        for i in range(out.shape[1]):
-            for j in range(out.shape[2]):
-                acc = norm_max if nearest else 0.0
-                for a in range(ss):
-                    for b in range(ss):
-                        v = t[n, i * ss + a, j * ss + b]
-                        if not (min_r <= v <= max_r) or v > norm_max:
-                            v = norm_max
-                        elif v < norm_min:
-                            v = norm_min
-                        acc = min(acc, v) if nearest else acc + v
-                out[n, i, j] = acc * inv
+def _to_mm_batch(t, min_r, max_r, out):  # pragma: no cover - compiled
+    """Ray parameters (N, H, W) -> uint16 depth frames (mm, rounded), 0 outside [min_r, max_r]."""
+    for n in range(t.shape[0]):
+        _to_mm(t[n], min_r, max_r, out[n])
 
 
 def _poses(pos_world_m: ArrayLike,
@@ -391,9 +378,9 @@ def render_network_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLi
     """The training path: network inputs (N, 32, 32) float32 in [0, 1], level attitude.
 
     Casts ``supersample``² rays per output pixel with ``camera``'s field of view and range rules
-    and applies the same normalisation and area averaging as
-    :func:`quadnav_onboard.preprocess.preprocess_depth_mm`, so it matches
-    ``preprocess_depth_mm(render_frame_mm(...))`` closely (see tests/test_render_paths.py).
+    into one frame and preprocesses it with the flight's code (:func:`render_inputs`); it matches
+    ``preprocess_depth_mm(render_frame_mm(...))`` of a full-resolution frame closely
+    (tests/test_render_paths.py).
     """
     return render_inputs(world, pos_world_m, yaw_rad, preprocess, camera=camera, supersample=supersample)[0]
 
@@ -402,25 +389,24 @@ def render_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
                   preprocess: PreprocessConfig = PreprocessConfig(), *, camera: CameraModel = D435_424x240,
                   supersample: int = 2, nearest: bool = False
                   ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
-    """Network inputs (as :func:`render_network_inputs`) and, with ``nearest``, from the same rays
-    the depth safety filter's view: the nearest surface among each pixel's rays (the sim's
-    :func:`quadnav_onboard.preprocess.nearest_depth_mm`; a real frame has ~100 pixels per cell,
-    so it is, if anything, the more cautious of the two)."""
+    """Network inputs (as :func:`render_network_inputs`) and, with ``nearest``, the depth safety
+    filter's view of the same frame.
+
+    The sim camera renders a (32 s) x (32 s) uint16 depth frame with ``camera``'s field of view and
+    range rules, and the frame goes through the flight's own preprocessing,
+    :func:`quadnav_onboard.preprocess.depth_inputs_mm` (range rules, cell means, the 3x3 median
+    and the nearest surface per cell): what training sees is computed by the code that flies."""
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
-    cam32 = CameraModel(OUT_SIZE, OUT_SIZE, camera.hfov_deg, camera.vfov_deg, camera.min_range_m,
-                        camera.max_range_m)
+    cam = CameraModel(OUT_SIZE * supersample, OUT_SIZE * supersample, camera.hfov_deg, camera.vfov_deg,
+                      camera.min_range_m, camera.max_range_m)
     pos, rot = _yaw_rot(pos_world_m, yaw_rad)
-    t = cast_depth_m(world.geometry, pos, rot, cam32, supersample)
-    args = (supersample, camera.min_range_m, camera.max_range_m,
-            preprocess.min_range_m, preprocess.max_range_m)
-    out = np.empty((pos.shape[0], OUT_SIZE, OUT_SIZE), dtype=np.float32)
-    _pool_normalized(t, *args, False, out)
-    if not nearest:
-        return out, None
-    near = np.empty_like(out)
-    _pool_normalized(t, *args, True, near)
-    return out, near
+    t = cast_depth_m(world.geometry, pos, rot, cam)
+    frames = np.empty(t.shape, dtype=np.uint16)
+    _to_mm_batch(t, camera.min_range_m, camera.max_range_m, frames)
+    mean, near = depth_inputs_mm(frames, preprocess, nearest=nearest)
+    assert mean is not None
+    return mean, near
 
 
 def render_frame_mm(world: World, pos_world_m: ArrayLike, quat_world_body: ArrayLike,

@@ -43,12 +43,18 @@ def test_near_readings_are_clipped_to_min_range():
     np.testing.assert_allclose(out, [0.02, 0.02, 0.1], rtol=1e-6)
 
 
-def test_area_downsampling_matches_opencv():
-    """The frame is area-averaged (INTER_AREA) after invalid handling."""
+def test_each_cell_is_the_mean_of_its_band_of_pixels():
+    """Cell (i, j) is the mean of rows i*H//32..(i+1)*H//32 and columns likewise, after invalid
+    handling; where 32 divides the frame that is exactly OpenCV's INTER_AREA."""
     rng = np.random.default_rng(0)
     frame = rng.integers(300, 9000, size=(480, 848), dtype=np.uint16)
-    expected = cv2.resize(frame.astype(np.float32) / 10000.0, (32, 32), interpolation=cv2.INTER_AREA)
-    np.testing.assert_allclose(preprocess_depth_mm(frame), expected, atol=1e-5)
+    rows, cols = (np.arange(33) * 480) // 32, (np.arange(33) * 848) // 32
+    expected = np.array([[frame[rows[i]:rows[i + 1], cols[j]:cols[j + 1]].mean() / 10000.0
+                          for j in range(32)] for i in range(32)])
+    np.testing.assert_allclose(preprocess_depth_mm(frame), expected, atol=1e-6)
+    square = rng.integers(300, 9000, size=(256, 256), dtype=np.uint16)
+    area = cv2.resize(square.astype(np.float32) / 10000.0, (32, 32), interpolation=cv2.INTER_AREA)
+    np.testing.assert_allclose(preprocess_depth_mm(square), area, atol=1e-6)
 
 
 def test_left_obstacle_shows_on_the_left():

@@ -62,17 +62,19 @@ def test_supersampling_reduces_the_difference() -> None:
 
 @pytest.mark.parametrize(("world_id", "camera"), [(3, D435_424x240), (8, D435_424x240), (10, D435_848x480)])
 def test_the_flight_filters_nearest_view_is_never_farther_than_the_sims(world_id: int, camera) -> None:
-    """The filter's nearest-surface view: the sim takes the least of 2x2 rays per cell, flight the
-    least of ~100 pixels (after a 3x3 median). Flight therefore sees thin things the sim can miss
-    (cells up to 8.6 m nearer measured here, 4-13 % of cells > 0.2 m nearer) but never anything
-    farther (measured: < 1e-4), so the sim's evaluation of the filter errs on the optimistic side,
-    the flight on the cautious one. Mean |diff| measured 0.010-0.011."""
+    """The filter's nearest-surface view, by the same code from frames of two resolutions: the
+    sim's 64x64 frame has 2x2 pixels per cell, flight's ~100. Flight therefore sees thin things the
+    sim can miss (cells up to 8.6 m nearer measured here). The 3x3 median reaches one pixel past a
+    cell's edge, half a cell in the sim's frame: there a surface of the next cell can count, so in
+    a few cells the sim is the nearer one (measured: 0.3-0.5 % of cells by more than 0.1 m, at most
+    0.71 m). Mean |diff| measured 0.010-0.011."""
     w, pos, yaw = _world_and_poses(world_id)
     _, sim = render_inputs(w, pos, yaw, camera=camera, nearest=True)
     flight = np.stack([nearest_depth_mm(render_frame_mm(w, p, quat_from_yaw(y), camera))
                        for p, y in zip(pos, yaw, strict=True)])
     assert sim is not None and sim.shape == flight.shape
-    assert (flight - sim).max() < 1e-3  # flight is never farther
+    farther = flight - sim
+    assert (farther > 0.01).mean() < 0.01 and farther.max() < 0.1  # flight is rarely farther, never by 1 m
     assert np.abs(sim - flight).mean() < 0.02
     assert np.median(np.abs(sim - flight)) < 0.01
     assert flight.std() > 0.05
