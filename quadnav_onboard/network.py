@@ -17,9 +17,11 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from quadnav_onboard.camera import INPUT_SIZE_PX
+
 __all__ = ["DQN", "NetworkConfig", "count_parameters"]
 
-INPUT_SIZE = 32
+INPUT_SIZE = INPUT_SIZE_PX
 """Side (pixels) of the square depth input."""
 
 

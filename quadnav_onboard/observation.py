@@ -2,8 +2,8 @@
 
 The paper feeds one depth image and one relative position (k = 1). Our history options stack the
 last ``depth_history`` 32x32 depth inputs and the last ``position_history`` relative positions,
-oldest first, exactly as :class:`quadnav_onboard.network.DQN` expects. The same class serves the
-simulator and the flight daemon, so what is trained is what flies.
+oldest first, exactly as :class:`quadnav_onboard.network.DQN` expects: the flight's one-vehicle
+view of :func:`quadnav_onboard.step.push_history`, which the training env pushes for N at once.
 
 Depth inputs are float32 (32, 32) in [0, 1] (see :mod:`quadnav_onboard.preprocess`); relative
 positions are ``setpoint - quad`` in the heading frame (x fwd, y left, z up), metres, shape (3,).
@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["ObservationHistory"]
+from quadnav_onboard.preprocess import OUT_SIZE as INPUT_SIZE
+from quadnav_onboard.step import push_history
 
-INPUT_SIZE = 32
-"""Side (pixels) of one depth input."""
+__all__ = ["ObservationHistory"]
 
 
 class ObservationHistory:
@@ -81,10 +81,8 @@ class ObservationHistory:
             self.reset(depth_input, rel_pos_body_m)
             return
         d, r = self._check(depth_input, rel_pos_body_m)
-        self._depth[:-1] = self._depth[1:].copy()
-        self._depth[-1] = d
-        self._rel[:-1] = self._rel[1:].copy()
-        self._rel[-1] = r
+        self._depth = push_history(self._depth[None], d[None])[0]
+        self._rel = push_history(self._rel[None], r[None])[0]
         self.version += 1
 
     def copy(self) -> ObservationHistory:

@@ -23,6 +23,7 @@ import numpy as np
 import pydantic
 from numpy.typing import NDArray
 
+from quadnav_onboard.camera import D435_MAX_RANGE_M, D435_MIN_RANGE_M, INPUT_SIZE_PX
 from quadnav_onboard.jit import CAN_CACHE, kernel_array
 
 __all__ = [
@@ -37,7 +38,7 @@ __all__ = [
     "validate_depth_mm",
 ]
 
-OUT_SIZE = 32
+OUT_SIZE = INPUT_SIZE_PX
 """Side (pixels) of the network's depth input."""
 
 _JIT = {"cache": CAN_CACHE, "nogil": True, "fastmath": False, "error_model": "numpy"}
@@ -54,10 +55,10 @@ class PreprocessConfig:
     # config files: unknown keys are errors, and so are NaN and ±inf (quadnav_onboard.config.CONFIG_DICT)
     __pydantic_config__ = {"extra": "forbid", "allow_inf_nan": False}
 
-    min_range_m: Annotated[float, pydantic.Field(gt=0, le=10)] = 0.2
+    min_range_m: Annotated[float, pydantic.Field(gt=0, le=10)] = D435_MIN_RANGE_M
     """Nearest valid depth (m), in (0, 10] and below ``max_range_m``; nearer readings are clipped up
     to it."""
-    max_range_m: Annotated[float, pydantic.Field(gt=0, le=65)] = 10.0
+    max_range_m: Annotated[float, pydantic.Field(gt=0, le=65)] = D435_MAX_RANGE_M
     """Farthest depth (m), in (0, 65] (uint16 millimetres end at 65.5 m); farther and invalid
     readings become this, i.e. 1.0 after scaling."""
     min_valid_fraction: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.05

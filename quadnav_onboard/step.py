@@ -261,9 +261,9 @@ def finish_step(
 
     ``collided`` (N,): the step hit something. Without ``q_values`` they are NaN (``n_actions``
     wide)."""
-    steps = np.asarray(step, dtype=np.int64).reshape(-1)
-    n = steps.shape[0]
-    coll = np.asarray(collided, dtype=bool).reshape(n)
+    n = before.distance_m.shape[0]
+    steps = np.broadcast_to(np.asarray(step, dtype=np.int64), (n,)).copy()
+    coll = np.broadcast_to(np.asarray(collided, dtype=bool), (n,)).copy()
     deviated = after.deviation_m > limits.episode_deviation_m
     goal = goal_reached(path, after, limits.goal_radius_m)
     timeout = steps + 1 >= limits.max_steps
@@ -273,7 +273,7 @@ def finish_step(
         q = np.asarray(q_values, dtype=np.float64).reshape(n, -1)
     return StepRecord(
         step=steps,
-        action=np.asarray(action, dtype=np.int64).reshape(n),
+        action=np.broadcast_to(np.asarray(action, dtype=np.int64), (n,)).copy(),
         q_values=q,
         rel_pos_body_m=np.asarray(before.rel_pos_body_m, dtype=np.float64).reshape(n, 3),
         moving_setpoint_world_m=before.setpoint_world_m.reshape(n, 3),

@@ -34,7 +34,7 @@ import pydantic
 from numpy.typing import NDArray
 
 from quadnav_onboard.config import PrimitiveConfig
-from quadnav_onboard.preprocess import PreprocessConfig
+from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig
 from quadnav_onboard.reward import RewardParams
 from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_at_scale, shield_verdict
 from quadnav_onboard.step import (
@@ -151,7 +151,7 @@ class VecQuadNavEnv:
         self.steps = np.zeros(n, dtype=np.int64)
         self.episode_return = np.zeros(n)
         self.done = np.zeros(n, dtype=bool)
-        self.depth = np.ones((n, kd, 32, 32), dtype=np.float32)
+        self.depth = np.ones((n, kd, OUT_SIZE, OUT_SIZE), dtype=np.float32)
         self.rel = np.zeros((n, kp, 3), dtype=np.float32)
         self.memory = PointMemory(n, config.shield) if config.shield.enabled else None
         self._floor_z = np.array([np.nan if w.floor_z_m is None else w.floor_z_m for w in self.worlds])
@@ -390,7 +390,7 @@ def observation_space(worlds: Sequence[World], config: EnvConfig) -> gym.spaces.
     bound = rel_pos_bound_m(worlds, config)
     return gym.spaces.Dict(
         {
-            "depth": gym.spaces.Box(0.0, 1.0, (kd, 32, 32), dtype=np.float32),
+            "depth": gym.spaces.Box(0.0, 1.0, (kd, OUT_SIZE, OUT_SIZE), dtype=np.float32),
             "rel_pos": gym.spaces.Box(-bound, bound, (kp, 3), dtype=np.float32),
         }
     )

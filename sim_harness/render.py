@@ -24,6 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from quadnav_onboard.camera import D435_HFOV_DEG, D435_MAX_RANGE_M, D435_MIN_RANGE_M, D435_VFOV_DEG
 from quadnav_onboard.frames import pixel_slopes, quat_to_rotmat, rotmat_yaw
 from quadnav_onboard.jit import CAN_CACHE
 from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig, depth_inputs_mm
@@ -38,6 +39,7 @@ __all__ = [
     "cast_depth_m",
     "render_depth_m",
     "render_frame_mm",
+    "render_input_frames_mm",
     "render_inputs",
     "render_network_inputs",
 ]
@@ -53,13 +55,13 @@ class CameraModel:
     """Image width (pixels)."""
     height: int
     """Image height (pixels)."""
-    hfov_deg: float = 87.0
+    hfov_deg: float = D435_HFOV_DEG
     """Horizontal field of view (deg), D435 depth: 87."""
-    vfov_deg: float = 58.0
+    vfov_deg: float = D435_VFOV_DEG
     """Vertical field of view (deg), D435 depth: 58."""
-    min_range_m: float = 0.2
+    min_range_m: float = D435_MIN_RANGE_M
     """Nearest depth (m) reported; nearer hits read 0 like a D435 below its min-Z."""
-    max_range_m: float = 10.0
+    max_range_m: float = D435_MAX_RANGE_M
     """Farthest depth (m) reported; farther hits read 0."""
 
     def __post_init__(self) -> None:
@@ -396,6 +398,16 @@ def render_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
     range rules, and the frame goes through the flight's own preprocessing,
     :func:`quadnav_onboard.preprocess.depth_inputs_mm` (range rules, cell means, the 3x3 median
     and the nearest surface per cell): what training sees is computed by the code that flies."""
+    frames = render_input_frames_mm(world, pos_world_m, yaw_rad, camera=camera, supersample=supersample)
+    mean, near = depth_inputs_mm(frames, preprocess, nearest=nearest)
+    assert mean is not None
+    return mean, near
+
+
+def render_input_frames_mm(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike, *,
+                           camera: CameraModel = D435_424x240, supersample: int = 2) -> NDArray[np.uint16]:
+    """The sim camera's frames that :func:`render_inputs` preprocesses: uint16 depth (mm, 0 = no
+    return), (N, 32 s, 32 s), ``camera``'s field of view and range rules, level attitude."""
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
     cam = CameraModel(OUT_SIZE * supersample, OUT_SIZE * supersample, camera.hfov_deg, camera.vfov_deg,
@@ -404,9 +416,7 @@ def render_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
     t = cast_depth_m(world.geometry, pos, rot, cam)
     frames = np.empty(t.shape, dtype=np.uint16)
     _to_mm_batch(t, camera.min_range_m, camera.max_range_m, frames)
-    mean, near = depth_inputs_mm(frames, preprocess, nearest=nearest)
-    assert mean is not None
-    return mean, near
+    return frames
 
 
 def render_frame_mm(world: World, pos_world_m: ArrayLike, quat_world_body: ArrayLike,
