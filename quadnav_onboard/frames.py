@@ -23,8 +23,8 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "body_to_world",
-    "enu_to_ned",
-    "ned_to_enu",
+    "flu_to_frd",
+    "frd_to_flu",
     "pixel_slopes",
     "quat_from_rotmat",
     "quat_from_yaw",
@@ -35,8 +35,8 @@ __all__ = [
     "rotmat_yaw",
     "world_to_body",
     "wrap_angle",
-    "yaw_enu_to_ned",
-    "yaw_ned_to_enu",
+    "yaw_flu_to_frd",
+    "yaw_frd_to_flu",
 ]
 
 _FLIP = np.array([1.0, -1.0, -1.0])
@@ -97,22 +97,25 @@ def body_to_world(vec_body: ArrayLike, yaw_rad: ArrayLike) -> NDArray[np.float64
     return np.stack([c * x - s * y, s * x + c * y, v[..., 2]], axis=-1)
 
 
-def enu_to_ned(vec_world: ArrayLike) -> NDArray[np.float64]:
-    """World (x fwd, y left, z up) vector or position, shape (..., 3), to PX4 NED. Also FLU->FRD."""
+def flu_to_frd(vec_world: ArrayLike) -> NDArray[np.float64]:
+    """(x, y, z) -> (x, -y, -z): a world vector or position (x forward, y left, z up), shape
+    (..., 3), to PX4's local frame as this project aligns it (x forward = north, y right = east,
+    z down), or a body vector FLU to FRD. Not an ENU-to-NED swap: x stays x."""
     return np.asarray(vec_world, dtype=np.float64) * _FLIP
 
 
-def ned_to_enu(vec_ned: ArrayLike) -> NDArray[np.float64]:
-    """PX4 NED vector or position, shape (..., 3), to world (x fwd, y left, z up). Also FRD->FLU."""
+def frd_to_flu(vec_ned: ArrayLike) -> NDArray[np.float64]:
+    """(x, y, z) -> (x, -y, -z): a PX4 local-frame vector or position (x north, y east, z down),
+    shape (..., 3), to the world frame (x forward, y left, z up), or a body vector FRD to FLU."""
     return np.asarray(vec_ned, dtype=np.float64) * _FLIP
 
 
-def yaw_enu_to_ned(yaw_world_rad: ArrayLike) -> NDArray[np.float64]:
+def yaw_flu_to_frd(yaw_world_rad: ArrayLike) -> NDArray[np.float64]:
     """World yaw (CCW about +z up, 0 = +x) to PX4 yaw (CW about +z down, 0 = north = +x)."""
     return wrap_angle(-np.asarray(yaw_world_rad, dtype=np.float64))
 
 
-def yaw_ned_to_enu(yaw_ned_rad: ArrayLike) -> NDArray[np.float64]:
+def yaw_frd_to_flu(yaw_ned_rad: ArrayLike) -> NDArray[np.float64]:
     """PX4 yaw (rad, NED) to world yaw (rad). Its own inverse, written out for readability."""
     return wrap_angle(-np.asarray(yaw_ned_rad, dtype=np.float64))
 

@@ -27,11 +27,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav_onboard.frames import (
-    enu_to_ned,
-    ned_to_enu,
+    flu_to_frd,
+    frd_to_flu,
     quat_to_rotmat,
     quat_world_to_ned,
-    yaw_enu_to_ned,
+    yaw_flu_to_frd,
 )
 from quadnav_onboard.logs import get_logger
 from quadnav_onboard.sources.base import OdometrySample
@@ -357,8 +357,8 @@ class MavsdkVehicle:
         async for pv in self._telemetry.subscribe_position_velocity_ned():
             self.state.t_position_mono_s = self._touch()
             p, v = pv.position, pv.velocity
-            self.state.pos_world_m = ned_to_enu([p.north_m, p.east_m, p.down_m])
-            self.state.vel_world_m_s = ned_to_enu([v.north_m_s, v.east_m_s, v.down_m_s])
+            self.state.pos_world_m = frd_to_flu([p.north_m, p.east_m, p.down_m])
+            self.state.vel_world_m_s = frd_to_flu([v.north_m_s, v.east_m_s, v.down_m_s])
 
     async def _watch_landed(self) -> None:
         async for landed in self._telemetry.subscribe_landed_state():
@@ -470,9 +470,9 @@ class MavsdkVehicle:
     ) -> None:
         from mavsdk.asyncio.plugins.offboard import PositionNedYaw, VelocityNedYaw
 
-        n, e, d = (float(x) for x in enu_to_ned(pos_world_m))
-        vn, ve, vd = (float(x) for x in enu_to_ned(vel_world_m_s))
-        yaw_deg = math.degrees(float(yaw_enu_to_ned(yaw_rad)))
+        n, e, d = (float(x) for x in flu_to_frd(pos_world_m))
+        vn, ve, vd = (float(x) for x in flu_to_frd(vel_world_m_s))
+        yaw_deg = math.degrees(float(yaw_flu_to_frd(yaw_rad)))
         if self._send_setpoint is None:
             raise VehicleError("setpoint: not connected", VehicleErrorKind.NOT_CONNECTED)
         # Sending a setpoint is one non-blocking MAVLink write in MAVSDK (no acknowledgement), so it
@@ -488,7 +488,7 @@ class MavsdkVehicle:
     ) -> None:
         from mavsdk.asyncio.plugins.mocap import AngleBody, Covariance, PositionBody, VisionPositionEstimate
 
-        x, y, z = (float(v) for v in enu_to_ned(pos_world_m))
+        x, y, z = (float(v) for v in flu_to_frd(pos_world_m))
         r = quat_to_rotmat(quat_world_to_ned(quat_world_body))  # FRD body -> NED
         roll = math.atan2(r[2, 1], r[2, 2])
         pitch = -math.asin(max(-1.0, min(1.0, r[2, 0])))
@@ -515,7 +515,7 @@ class MavsdkVehicle:
         async for odo in self._telemetry.subscribe_odometry():
             t = self._touch()
             p, q = odo.position_body, odo.q
-            pos = ned_to_enu([p.x_m, p.y_m, p.z_m])
+            pos = frd_to_flu([p.x_m, p.y_m, p.z_m])
             quat = quat_world_to_ned([q.w, q.x, q.y, q.z])  # its own inverse: FRD/NED -> FLU/world
             yield OdometrySample(pos, quat, t)
 

@@ -43,22 +43,22 @@ def test_rotmat_matches_body_to_world():
 @given(vec3)
 def test_enu_ned_round_trip(v):
     """ENU -> NED -> ENU is identity; NED flips y and z."""
-    n = frames.enu_to_ned(v)
+    n = frames.flu_to_frd(v)
     np.testing.assert_allclose(n, [v[0], -v[1], -v[2]])
-    np.testing.assert_allclose(frames.ned_to_enu(n), v)
+    np.testing.assert_allclose(frames.frd_to_flu(n), v)
 
 
 def test_altitude_up_is_negative_down():
     """2 m above the floor in the world is z = -2 in NED."""
-    assert frames.enu_to_ned([0.0, 0.0, 2.0])[2] == -2.0
+    assert frames.flu_to_frd([0.0, 0.0, 2.0])[2] == -2.0
 
 
 @given(yaw)
 def test_yaw_conversions_invert(y):
     """World yaw -> PX4 yaw -> world yaw is identity modulo 2 pi; left turn is negative in NED."""
-    back = frames.yaw_ned_to_enu(frames.yaw_enu_to_ned(y))
+    back = frames.yaw_frd_to_flu(frames.yaw_flu_to_frd(y))
     assert np.isclose(np.cos(back), np.cos(y)) and np.isclose(np.sin(back), np.sin(y))
-    assert np.isclose(frames.yaw_enu_to_ned(0.3), -0.3)
+    assert np.isclose(frames.yaw_flu_to_frd(0.3), -0.3)
 
 
 @given(yaw)

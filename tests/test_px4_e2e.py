@@ -17,7 +17,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
 from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
 
-from quadnav_onboard.frames import ned_to_enu
+from quadnav_onboard.frames import frd_to_flu
 from sim_harness.px4 import EmulatorConfig, Px4Emulator, free_udp_port
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(60)]
@@ -55,7 +55,7 @@ async def test_mavsdk_connects_arms_flies_offboard_lands_and_disarms() -> None:
             await offboard.set_position_ned(PositionNedYaw(*target_ned, 0.0))
             await offboard.start()
             assert emu.mode == "OFFBOARD"
-            target_world = ned_to_enu(target_ned)
+            target_world = frd_to_flu(target_ned)
             async with asyncio.timeout(8.0):
                 while np.linalg.norm(emu.true_pose().pos_world_m - target_world) > 0.1:
                     await offboard.set_position_ned(PositionNedYaw(*target_ned, 0.0))

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav_onboard.frames import ned_to_enu, quat_world_to_ned
+from quadnav_onboard.frames import frd_to_flu, quat_world_to_ned
 from sim_harness.px4.mavlink_io import mavlink2 as m
 
 __all__ = ["BridgePose", "SitlBridge"]
@@ -104,13 +104,13 @@ class SitlBridge:
         vel = np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64)
         if not (np.all(np.isfinite(ned)) and np.all(np.isfinite(vel))):
             return False
-        enu = np.asarray(ned_to_enu(ned), dtype=np.float64)
+        enu = np.asarray(frd_to_flu(ned), dtype=np.float64)
         if self.ground_up_m is None or (not self.armed and self.landed):
             self.ground_up_m = float(enu[2])
         pos = np.array([enu[0], enu[1], enu[2] - self.ground_up_m + self.floor_z_m])
         pos[2] = max(pos[2], self.floor_z_m)  # the estimate dips below the ground; the vehicle cannot
         prev = self._pose
-        self._pose = BridgePose(pos, np.asarray(ned_to_enu(vel), dtype=np.float64), self._quat.copy(), t)
+        self._pose = BridgePose(pos, np.asarray(frd_to_flu(vel), dtype=np.float64), self._quat.copy(), t)
         if (
             self._collide is not None and prev is not None and not self.crashed
             and math.dist(prev.pos_world_m, pos) < 5.0  # a jump (a re-anchored estimate) is no sweep

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from quadnav_onboard.frames import ned_to_enu, yaw_ned_to_enu
+from quadnav_onboard.frames import frd_to_flu, yaw_frd_to_flu
 from quadnav_onboard.logs import get_logger
 from sim_harness.px4 import telemetry as tm
 from sim_harness.px4.mavlink_io import MavlinkLink
@@ -227,10 +227,10 @@ class CommandHandler:
         mask = msg.type_mask
         pos_ned = np.array([msg.x, msg.y, msg.z], dtype=np.float64)
         vel_ned = np.array([msg.vx, msg.vy, msg.vz], dtype=np.float64)
-        pos = (ned_to_enu(pos_ned) - self.emu.local_offset_world_m
+        pos = (frd_to_flu(pos_ned) - self.emu.local_offset_world_m
                if not mask & _POS_IGNORE and np.all(np.isfinite(pos_ned)) else None)
-        vel = ned_to_enu(vel_ned) if not mask & _VEL_IGNORE and np.all(np.isfinite(vel_ned)) else None
-        yaw = float(yaw_ned_to_enu(msg.yaw)) if not mask & _YAW_IGNORE and _finite(msg.yaw) else None
+        vel = frd_to_flu(vel_ned) if not mask & _VEL_IGNORE and np.all(np.isfinite(vel_ned)) else None
+        yaw = float(yaw_frd_to_flu(msg.yaw)) if not mask & _YAW_IGNORE and _finite(msg.yaw) else None
         if pos is None and vel is None:
             return  # PX4 needs position or velocity for the offboard position controller
         self.emu.vehicle.on_setpoint(Setpoint(pos, vel, yaw, t))

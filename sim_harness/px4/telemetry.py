@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav_onboard.frames import enu_to_ned, quat_from_yaw, quat_world_to_ned, yaw_enu_to_ned
+from quadnav_onboard.frames import flu_to_frd, quat_from_yaw, quat_world_to_ned, yaw_flu_to_frd
 from sim_harness.px4.config import EmulatorConfig
 from sim_harness.px4.mavlink_io import mavlink2 as m
 from sim_harness.px4.modes import encode_custom_mode
@@ -132,7 +132,7 @@ def _attitude_world(s: VehicleSnapshot) -> NDArray[np.float64]:
 
 
 def local_position_ned(s: VehicleSnapshot) -> m.MAVLink_message:
-    p, v = enu_to_ned(s.pos_world_m + s.local_offset_m), enu_to_ned(s.vel_world_m_s)
+    p, v = flu_to_frd(s.pos_world_m + s.local_offset_m), flu_to_frd(s.vel_world_m_s)
     return m.MAVLink_local_position_ned_message(s.t_boot_ms, *map(float, p), *map(float, v))
 
 
@@ -143,9 +143,9 @@ def attitude_quaternion(s: VehicleSnapshot) -> m.MAVLink_message:
 
 def odometry(s: VehicleSnapshot) -> m.MAVLink_message:
     """ODOMETRY in LOCAL_NED with the velocity in the body FRD frame (as PX4 sends it)."""
-    p = enu_to_ned(s.pos_world_m + s.local_offset_m)
-    yaw_ned = float(yaw_enu_to_ned(s.yaw_rad))
-    v_ned = enu_to_ned(s.vel_world_m_s)
+    p = flu_to_frd(s.pos_world_m + s.local_offset_m)
+    yaw_ned = float(yaw_flu_to_frd(s.yaw_rad))
+    v_ned = flu_to_frd(s.vel_world_m_s)
     c, sn = math.cos(yaw_ned), math.sin(yaw_ned)
     v_frd = [c * v_ned[0] + sn * v_ned[1], -sn * v_ned[0] + c * v_ned[1], v_ned[2]]
     nan21 = [math.nan] * 21
@@ -170,7 +170,7 @@ def extended_sys_state(s: VehicleSnapshot) -> m.MAVLink_message:
 
 def world_to_global(pos_world_m: NDArray[np.float64], cfg: EmulatorConfig) -> tuple[float, float, float]:
     """(lat_deg, lon_deg, alt_amsl_m) of a world position, flat-earth about the world origin."""
-    north, east, down = (float(v) for v in enu_to_ned(pos_world_m))
+    north, east, down = (float(v) for v in flu_to_frd(pos_world_m))
     lat = cfg.home_lat_deg + math.degrees(north / _EARTH_RADIUS_M)
     lon = cfg.home_lon_deg + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(cfg.home_lat_deg))))
     return lat, lon, cfg.home_amsl_m - down
@@ -179,8 +179,8 @@ def world_to_global(pos_world_m: NDArray[np.float64], cfg: EmulatorConfig) -> tu
 def global_position_int(s: VehicleSnapshot, cfg: EmulatorConfig) -> m.MAVLink_message:
     lat, lon, alt = world_to_global(s.pos_world_m, cfg)
     rel_alt = float(s.pos_world_m[2] - s.home_world_m[2])
-    v = enu_to_ned(s.vel_world_m_s) * 100.0
-    hdg = round(math.degrees(float(yaw_enu_to_ned(s.yaw_rad))) % 360.0 * 100) % 36000
+    v = flu_to_frd(s.vel_world_m_s) * 100.0
+    hdg = round(math.degrees(float(yaw_flu_to_frd(s.yaw_rad))) % 360.0 * 100) % 36000
     return m.MAVLink_global_position_int_message(
         s.t_boot_ms, int(lat * 1e7), int(lon * 1e7), int(alt * 1000), int(rel_alt * 1000),
         int(v[0]), int(v[1]), int(v[2]), hdg,
@@ -189,7 +189,7 @@ def global_position_int(s: VehicleSnapshot, cfg: EmulatorConfig) -> m.MAVLink_me
 
 def home_position(s: VehicleSnapshot, cfg: EmulatorConfig) -> m.MAVLink_message:
     lat, lon, alt = world_to_global(s.home_world_m, cfg)
-    p = enu_to_ned(s.home_world_m + s.local_offset_m)
+    p = flu_to_frd(s.home_world_m + s.local_offset_m)
     return m.MAVLink_home_position_message(
         int(lat * 1e7), int(lon * 1e7), int(alt * 1000), *map(float, p), [1.0, 0.0, 0.0, 0.0],
         0.0, 0.0, 0.0, s.t_boot_ms * 1000,
