@@ -143,6 +143,40 @@ class TrainConfig:
     """Decisions whose depth points the shield remembers. Range: [1, 64]."""
     shield_require_seen: bool = False
     """The shield also vetoes primitives into space no remembered view saw to be free."""
+    dagger_iterations: Annotated[int, pydantic.Field(ge=0, le=1000)] = 0
+    """Imitation of the privileged teacher before the RL episodes (beyond the paper;
+    sim_harness.rl.imitation): DAgger iterations, each flying ``dagger_episodes`` episodes per
+    scale of ``imitation_scales``, labelling every visited state with the teacher
+    (sim_harness.rl.teacher: a search over the primitives against the true world) and fitting
+    the network to all labels so far. 0 = none (the paper). Range: [0, 1000]."""
+    dagger_episodes: Annotated[int, pydantic.Field(ge=1, le=1_000_000)] = 64
+    """Episodes per DAgger iteration and scale. Range: [1, 10^6]."""
+    dagger_beta: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.5
+    """In DAgger iteration i the teacher flies a step with probability ``dagger_beta ** i``
+    (iteration 0: the teacher alone), the network otherwise. Range: [0, 1]."""
+    imitation_epochs: Annotated[float, pydantic.Field(gt=0, le=1000)] = 2.0
+    """Passes over the aggregated labels after each DAgger iteration. Range: (0, 1000]."""
+    imitation_lr: Annotated[float, pydantic.Field(gt=0, le=1)] = 1e-3
+    """Adam step size of the imitation fits. Range: (0, 1]."""
+    imitation_temperature_m: Annotated[float, pydantic.Field(gt=0, le=100)] = 0.25
+    """Temperature (m of the teacher's cost) of the soft targets: softmax(-cost / T).
+    Range: (0, 100]."""
+    imitation_buffer: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 300_000
+    """Most labelled states kept (oldest overwritten past it; 6 kB each at depth
+    history 3). Range: [1, 10^7]."""
+    imitation_scales: tuple[Annotated[float, pydantic.Field(gt=0, le=5)], ...] = (1.0,)
+    """Primitive scales (m) DAgger flies, each with its own envs (the product flies 0.5 m; the
+    paper trains 1 m). Range: (0, 5] each."""
+    imitation_only: bool = False
+    """With ``dagger_iterations`` > 0: stop after the imitation (no RL episodes; ``episodes``
+    is then unused)."""
+    teacher_lookahead: Annotated[int, pydantic.Field(ge=1, le=2)] = 2
+    """Primitives the teacher looks ahead. Range: [1, 2]."""
+    teacher_margin_m: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.15
+    """Clearance beyond the quad's radius the teacher keeps from the true geometry.
+    Range: (0, 1]."""
+    teacher_grid_m: Annotated[float, pydantic.Field(ge=0.05, le=1)] = 0.25
+    """Voxel size (m) of the teacher's cost-to-go field. Range: [0.05, 1]."""
     init_model: str = ""
     """Checkpoint whose weights start the online and target networks (fine-tuning; "" = random
     init). Its network shape must match this config's."""

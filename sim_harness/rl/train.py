@@ -38,6 +38,7 @@ from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
 from sim_harness.rl.evaluate import evaluate, scores
+from sim_harness.rl.imitation import DaggerSettings, dagger
 from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
 from sim_harness.rl.runlog import (
     git_commit,
@@ -50,6 +51,7 @@ from sim_harness.rl.runlog import (
 )
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.rl.tblog import TensorBoardLog, open_tensorboard
+from sim_harness.rl.teacher import Teacher, TeacherConfig
 from sim_harness.world import World, load_world, paper_world_path
 
 __all__ = [
@@ -58,6 +60,7 @@ __all__ = [
     "TrainResult",
     "TrainingInterrupted",
     "env_config_for",
+    "imitate",
     "learning_rate_at",
     "network_config_for",
     "train",
@@ -194,6 +197,29 @@ def _evaluator(
     return scores(rows)
 
 
+def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World],
+            run_dir: Path) -> list[dict[str, Any]]:
+    """DAgger from the privileged teacher (``dagger_*``, ``imitation_*``, ``teacher_*`` fields) on
+    ``agent``; writes ``dagger.json`` and ``checkpoints/imitation.pt`` in ``run_dir``."""
+    teacher = Teacher(TeacherConfig(
+        grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead
+    ))
+    scaled = [
+        at_primitive_scale(env_cfg, worlds, s) if s != REFERENCE_SCALE_M else (env_cfg, list(worlds))
+        for s in cfg.imitation_scales
+    ]
+    settings = DaggerSettings(
+        iterations=cfg.dagger_iterations, episodes=cfg.dagger_episodes, beta=cfg.dagger_beta,
+        epochs=cfg.imitation_epochs, lr=cfg.imitation_lr, temperature_m=cfg.imitation_temperature_m,
+        batch_size=cfg.batch_size, buffer=cfg.imitation_buffer, seed=cfg.seed,
+    )
+    records = dagger(agent, scaled, teacher, settings, cfg.n_envs)
+    (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
+    extra = {"episodes": 0, "env_steps": 0, "env": _env_meta(env_cfg)}
+    _save_model(run_dir / "checkpoints" / "imitation.pt", agent, cfg, env_cfg, extra)
+    return records
+
+
 def train(
     config: TrainConfig | None = None,
     *,
@@ -225,6 +251,7 @@ def train(
     worlds = [load_world(p) for p in world_paths]  # bad worlds fail before a run directory exists
     n_listed = len(worlds)  # evaluations fly these, not the procedural ones
     worlds += procedural_worlds(cfg.procedural_worlds, cfg.procedural_seed, cfg.procedural_families)
+    worlds_ref = list(worlds)  # as written for the reference scale (the imitation rescales them)
     if cfg.primitive_scale_m != REFERENCE_SCALE_M:
         env_cfg, worlds = at_primitive_scale(env_cfg, worlds, cfg.primitive_scale_m)
     init = _init_checkpoint(cfg) if resume is None else None  # fails before a run directory exists
@@ -240,6 +267,13 @@ def train(
     if init is not None:
         agent.q.load_state_dict(init.model.state_dict())
         agent.target.load_state_dict(init.model.state_dict())
+    if cfg.dagger_iterations > 0 and resume is None:
+        imitate(agent, cfg, env_config_for(cfg), worlds_ref, run_dir)
+        if cfg.imitation_only:
+            extra = {"episodes": 0, "env_steps": 0, "env": _env_meta(env_cfg)}
+            final = _save_model(run_dir / "checkpoints" / "final.pt", agent, cfg, env_cfg, extra)
+            write_metrics(run_dir, [])
+            return TrainResult(run_dir, final, 0, 0, agent.n_updates, 0.0)
     kd, kp = cfg.depth_history, cfg.position_history
     n_actions = env.prims.n_actions
     shapes = (cfg.buffer_size, (kd, 32, 32), (kp, 3))

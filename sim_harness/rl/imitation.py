@@ -1,0 +1,188 @@
+"""Imitation of the privileged teacher with DAgger (before, or instead of, the RL episodes).
+
+Iteration ``i`` (0, 1, ...) of :func:`dagger`:
+
+1. **Roll out** ``dagger_episodes`` episodes per primitive scale in ``imitation_scales``; at each
+   step every running env takes the teacher's primitive with probability ``dagger_beta ** i``
+   (iteration 0: the teacher alone), else the network's greedy one (Ross et al. 2011).
+2. **Label** every visited state with the teacher's costs of all primitives
+   (:class:`sim_harness.rl.teacher.Teacher`) as a soft target (:func:`~sim_harness.rl.teacher.soft_targets`,
+   ``imitation_temperature_m``), whoever flew it, and **aggregate** it into one dataset
+   (:class:`Aggregate`: every iteration's states are kept, up to ``imitation_buffer``).
+3. **Fit** the network's Q-values, as logits, to the aggregate by cross-entropy
+   (``imitation_epochs`` passes, minibatches of ``batch_size``, Adam at ``imitation_lr``).
+
+The network is the one the RL loop and the daemon use, unchanged: the greedy action is the
+arg-max of the same 18 outputs, and the order of the others is the teacher's, which is what the
+safety filter falls back on when it vetoes the first choice.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import structlog
+import torch
+import torch.nn.functional as F
+from numpy.typing import NDArray
+
+from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.rl.agent import DQNAgent
+from sim_harness.rl.teacher import Teacher, soft_targets
+from sim_harness.world import World
+
+__all__ = ["Aggregate", "DaggerSettings", "collect", "dagger", "fit"]
+
+log = structlog.get_logger(__name__)
+
+
+@dataclass(frozen=True)
+class DaggerSettings:
+    """What :func:`dagger` does (the ``TrainConfig`` fields of the same names)."""
+
+    iterations: int
+    episodes: int
+    beta: float
+    epochs: float
+    lr: float
+    temperature_m: float
+    batch_size: int
+    buffer: int
+    seed: int
+
+
+class Aggregate:
+    """DAgger's dataset: observations and the teacher's soft targets, kept across iterations.
+
+    Depth is stored as float16 (inputs in [0, 1]: 1e-3 resolution). Past ``capacity`` the oldest
+    rows are overwritten."""
+
+    def __init__(self, capacity: int, depth_shape: tuple[int, ...], rel_shape: tuple[int, ...],
+                 n_actions: int) -> None:
+        if capacity < 1:
+            raise ValueError(f"Aggregate capacity must be >= 1, got {capacity}")
+        self.capacity = int(capacity)
+        self.depth = np.zeros((capacity, *depth_shape), dtype=np.float16)
+        self.rel = np.zeros((capacity, *rel_shape), dtype=np.float32)
+        self.target = np.zeros((capacity, n_actions), dtype=np.float32)
+        self.iteration = np.zeros(capacity, dtype=np.int32)
+        """The DAgger iteration each row was collected in."""
+        self.size = 0
+        self._next = 0
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(self, depth: NDArray, rel: NDArray, target: NDArray, iteration: int) -> None:
+        n = depth.shape[0]
+        if not (rel.shape[0] == n and target.shape[0] == n):
+            raise ValueError("depth, rel and target need the same number of rows")
+        idx = (self._next + np.arange(n)) % self.capacity
+        self.depth[idx] = depth
+        self.rel[idx] = rel
+        self.target[idx] = target
+        self.iteration[idx] = iteration
+        self._next = int((self._next + n) % self.capacity)
+        self.size = min(self.capacity, self.size + n)
+
+
+def collect(
+    env: VecQuadNavEnv,
+    teacher: Teacher,
+    agent: DQNAgent,
+    episodes: int,
+    beta: float,
+    rng: np.random.Generator,
+    temperature_m: float,
+    data: Aggregate,
+    iteration: int,
+) -> dict[str, int]:
+    """Fly ``episodes`` episodes in ``env`` (auto-reset) with the β-mixture of teacher and network,
+    adding every visited state with the teacher's soft target to ``data``; returns the outcome
+    counts of the episodes (those the network flew alone when β = 0)."""
+    counts: dict[str, int] = {}
+    finished = 0
+    depth, rel = env.depth, env.rel
+    while finished < episodes:
+        costs = teacher.action_costs(env, np.arange(env.n_envs))
+        data.add(depth, rel, soft_targets(costs, temperature_m), iteration)
+        actions = np.argmin(costs, axis=1)
+        if beta < 1.0:
+            own = rng.random(env.n_envs) >= beta
+            if own.any():
+                actions[own] = agent.greedy(depth[own], rel[own])
+        depth, rel, _, term, trunc, info = env.step(actions)
+        for i in np.flatnonzero(term | trunc):
+            if finished < episodes:
+                key = str(info["outcome"][i])
+                counts[key] = counts.get(key, 0) + 1
+                finished += 1
+    return counts
+
+
+def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
+        optimizer: torch.optim.Optimizer) -> float:
+    """``epochs`` passes (fractions allowed) of cross-entropy between softmax(Q) and the targets;
+    returns the mean loss. The target network is set to the result."""
+    n_batches = max(1, round(epochs * len(data) / batch_size))
+    losses = []
+    agent.q.train()
+    for _ in range(n_batches):
+        idx = rng.integers(0, len(data), size=min(batch_size, len(data)))
+        depth = agent._t(data.depth[idx].astype(np.float32))
+        rel = agent._t(data.rel[idx])
+        target = agent._t(data.target[idx])
+        q = agent.q(depth, rel)
+        loss = -(target * F.log_softmax(q, dim=1)).sum(dim=1).mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(agent.q.parameters(), 10.0)
+        optimizer.step()
+        losses.append(float(loss.detach()))
+    agent.target.load_state_dict(agent.q.state_dict())
+    return float(np.mean(losses))
+
+
+def dagger(
+    agent: DQNAgent,
+    scaled: Sequence[tuple[EnvConfig, Sequence[World]]],
+    teacher: Teacher,
+    settings: DaggerSettings,
+    n_envs: int,
+) -> list[dict]:
+    """Run DAgger on ``agent.q`` over the (env config, worlds) pairs of ``scaled`` (one per
+    primitive scale); returns one record per iteration and scale (outcomes, dataset size, loss,
+    wall time)."""
+    s = settings
+    env0 = scaled[0][0]
+    rng = np.random.default_rng(s.seed + 7)
+    n_actions = env0.primitives.build().n_actions
+    data = Aggregate(s.buffer, (env0.depth_history, 32, 32), (env0.position_history, 3), n_actions)
+    envs = [
+        VecQuadNavEnv(list(worlds), n_envs, seed=s.seed + 101 * (k + 1), config=cfg)
+        for k, (cfg, worlds) in enumerate(scaled)
+    ]
+    for env in envs:
+        env.reset()
+    optimizer = torch.optim.Adam(agent.q.parameters(), lr=s.lr)
+    records: list[dict] = []
+    t0 = time.monotonic()
+    for it in range(s.iterations):
+        beta = s.beta**it
+        agent.q.eval()
+        for env, (cfg, _) in zip(envs, scaled, strict=True):
+            counts = collect(env, teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it)
+            records.append({
+                "iteration": it, "beta": round(beta, 6), "scale_m": cfg.primitives.scale_m,
+                "outcomes": counts, "dataset": len(data),
+            })
+        loss = fit(agent, data, s.epochs, s.batch_size, rng, optimizer)
+        records[-1]["loss"] = round(loss, 6)
+        records[-1]["wall_s"] = round(time.monotonic() - t0, 2)
+        log.info("dagger iteration", iteration=it, beta=round(beta, 4), dataset=len(data),
+                 loss=round(loss, 4), outcomes=[r["outcomes"] for r in records[-len(envs):]],
+                 wall_s=records[-1]["wall_s"])
+    return records

@@ -1,0 +1,121 @@
+"""DAgger: what it collects, what it aggregates, and that the fit learns the teacher's labels."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from quadnav_onboard.checkpoint import load_checkpoint
+from quadnav_onboard.network import NetworkConfig
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.rl.agent import DQNAgent
+from sim_harness.rl.config import TrainConfig
+from sim_harness.rl.imitation import Aggregate, collect, fit
+from sim_harness.rl.teacher import Teacher
+from sim_harness.rl.train import train
+from sim_harness.world import parse_world
+
+HOVER = DEFAULT_DIRECTIONS.index((0, 0, 0))
+FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _world():
+    return parse_world({
+        "name": "open",
+        "path": {"waypoints": [[0.0, 0.0, 2.0], [8.0, 0.0, 2.0]], "speed_m_s": 1.0},
+        "bounds": {"floor_z": 0.0, "ceiling_z": 4.0},
+        "obstacles": [],
+    })
+
+
+class _Hoverer(DQNAgent):
+    """A student that always hovers (its greedy action is known)."""
+
+    def greedy(self, depth, rel, allowed=None):
+        return np.full(depth.shape[0], HOVER, dtype=np.int64)
+
+
+def _env(n: int = 2, max_steps: int = 6) -> VecQuadNavEnv:
+    env = VecQuadNavEnv([_world()], n, seed=0, config=EnvConfig(max_steps=max_steps))
+    env.reset()
+    return env
+
+
+def test_teacher_iteration_flies_the_teacher_and_labels_every_step() -> None:
+    env, teacher = _env(max_steps=12), Teacher()
+    data = Aggregate(1000, (1, 32, 32), (1, 3), 18)
+    counts = collect(env, teacher, _Hoverer(NetworkConfig()), 2, 1.0, np.random.default_rng(0), 0.25, data, 0)
+    assert counts == {"goal": 2}  # the teacher flew, not the hovering student
+    assert len(data) > 0 and np.all(data.iteration[: len(data)] == 0)
+    assert np.all(np.argmax(data.target[: len(data)], axis=1) != HOVER)
+
+
+def test_student_iteration_flies_the_student_but_keeps_the_teachers_labels() -> None:
+    env, teacher = _env(n=2, max_steps=4), Teacher()
+    data = Aggregate(1000, (1, 32, 32), (1, 3), 18)
+    collect(env, teacher, _Hoverer(NetworkConfig()), 2, 1.0, np.random.default_rng(0), 0.25, data, 0)
+    first = len(data)
+    counts = collect(env, teacher, _Hoverer(NetworkConfig()), 2, 0.0, np.random.default_rng(0), 0.25, data, 1)
+    assert counts == {"timeout": 2}  # the student hovered until the step limit
+    # aggregated, not replaced: both iterations' rows are there, the second's 2 envs x 4 steps
+    assert len(data) == first + 8
+    assert list(np.bincount(data.iteration[: len(data)])) == [first, 8]
+    # the hovering student's states are labelled with the teacher's move, not its own
+    assert np.all(np.argmax(data.target[first: len(data)], axis=1) != HOVER)
+
+
+def test_aggregate_overwrites_the_oldest_past_capacity() -> None:
+    data = Aggregate(5, (1, 2, 2), (1, 3), 3)
+    for it in range(3):
+        data.add(np.full((2, 1, 2, 2), it, np.float32), np.zeros((2, 1, 3), np.float32),
+                 np.full((2, 3), 1 / 3, np.float32), it)
+    assert len(data) == 5
+    assert sorted(data.iteration.tolist()) == [0, 1, 1, 2, 2]
+
+
+def test_fit_learns_the_labels() -> None:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    agent = DQNAgent(NetworkConfig())
+    data = Aggregate(256, (1, 32, 32), (1, 3), 18)
+    depth = np.full((256, 1, 32, 32), 0.5, np.float32)
+    rel = rng.normal(size=(256, 1, 3)).astype(np.float32)
+    rel[:, 0, 1] = rng.choice([-1.0, 1.0], 256) * rng.uniform(0.5, 2.0, 256)  # clear of the boundary
+    label = np.where(rel[:, 0, 1] > 0, FORWARD, HOVER)  # a rule of the position input
+    target = np.full((256, 18), 0.01 / 17, np.float32)
+    target[np.arange(256), label] = 0.99
+    data.add(depth, rel, target, 0)
+    before = np.mean(agent.greedy(depth, rel) == label)
+    fit(agent, data, 30.0, 64, rng, torch.optim.Adam(agent.q.parameters(), lr=1e-3))
+    after = np.mean(agent.greedy(depth, rel) == label)
+    assert after > 0.95 and after > before
+    for p, q in zip(agent.q.parameters(), agent.target.parameters(), strict=True):
+        assert torch.equal(p, q)
+
+
+def test_train_with_imitation_only_writes_the_records_and_a_flyable_model(tmp_path) -> None:
+    cfg = TrainConfig(
+        name="dg", seed=1, train_worlds=(1,), n_envs=4, max_steps=10, batch_size=16,
+        dagger_iterations=2, dagger_episodes=2, imitation_scales=(1.0, 0.5), imitation_only=True,
+        imitation_epochs=1.0, teacher_lookahead=1, teacher_grid_m=0.5, out_dir=str(tmp_path),
+    )
+    result = train(cfg, progress=False)
+    records = json.loads((result.run_dir / "dagger.json").read_text())
+    assert [(r["iteration"], r["scale_m"]) for r in records] == [(0, 1.0), (0, 0.5), (1, 1.0), (1, 0.5)]
+    assert [r["beta"] for r in records] == [1.0, 1.0, 0.5, 0.5]
+    assert records[1]["dataset"] < records[3]["dataset"]
+    ck = load_checkpoint(result.model_path)
+    assert ck.meta["train_config"]["dagger_iterations"] == 2
+    assert (result.run_dir / "checkpoints" / "imitation.pt").is_file()

@@ -1,0 +1,108 @@
+"""The privileged teacher: its cost-to-go field and its labels where the answer is known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from sim_harness.env import EnvConfig, VecQuadNavEnv
+from sim_harness.rl.teacher import UNREACHABLE, Teacher, TeacherConfig, cost_field, soft_targets
+from sim_harness.world import parse_world
+
+FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
+
+
+def _world(obstacles: list[dict], length: float = 20.0):
+    return parse_world({
+        "name": "test",
+        "path": {"waypoints": [[0.0, 0.0, 2.0], [length, 0.0, 2.0]], "speed_m_s": 1.0},
+        "bounds": {"floor_z": 0.0, "ceiling_z": 4.0},
+        "obstacles": obstacles,
+    })
+
+
+def _env(world, n: int = 1) -> VecQuadNavEnv:
+    env = VecQuadNavEnv([world], n, seed=0, config=EnvConfig(start_jitter_m=0.0), autoreset=False)
+    env.reset()
+    return env
+
+
+def test_field_in_free_space_is_the_distance_to_the_goal_ball() -> None:
+    world = _world([])
+    field = cost_field(world, 0.3, TeacherConfig(grid_m=0.25))
+    pts = np.array([[0.0, 0.0, 2.0], [10.0, 1.0, 2.0], [15.0, -2.0, 1.5]])
+    straight = np.linalg.norm(pts - world.path.goal_m, axis=1) - 0.9
+    got = field(pts)
+    # a 26-neighbour grid overestimates a straight line by at most ~8 % (and never under)
+    assert np.all(got >= straight - 0.3) and np.all(got <= 1.09 * straight + 0.3)
+    assert field(np.array([[0.0, 9.0, 2.0]]))[0] == UNREACHABLE  # past the deviation limit
+
+
+def test_field_goes_round_a_wall_not_through_it() -> None:
+    wall = {"type": "box", "center": [10.0, 0.5, 2.0], "size": [0.5, 5.0, 4.0], "yaw_deg": 0.0}
+    world = _world([wall])
+    field = cost_field(world, 0.3)
+    before = field(np.array([[8.0, 0.0, 2.0]]))[0]
+    # the gap is at y < -2: at least the detour's length, well above the straight 11.1 m
+    assert before > 12.0 and before < UNREACHABLE
+
+
+def test_teacher_flies_straight_in_free_space() -> None:
+    env = _env(_world([]))
+    assert Teacher().labels(env)[0] == FORWARD
+
+
+@pytest.mark.parametrize("lookahead", [1, 2])
+def test_teacher_turns_towards_the_only_gap(lookahead: int) -> None:
+    # a wall 2 m ahead from y = -1 to the left edge: only a move to the right (y < 0) avoids it
+    wall = {"type": "box", "center": [2.3, 2.0, 2.0], "size": [0.4, 6.0, 4.0], "yaw_deg": 0.0}
+    env = _env(_world([wall]))
+    teacher = Teacher(TeacherConfig(lookahead=lookahead))
+    costs = teacher.action_costs(env)[0]
+    best = DEFAULT_DIRECTIONS[int(np.argmin(costs))]
+    assert best[1] == -1, best  # a rightward primitive
+    assert costs[FORWARD] > costs.min()
+
+
+def test_a_primitive_into_a_wall_costs_a_crash() -> None:
+    # 1 m ahead, from y = -2 to the left edge (the way on is round its right end)
+    wall = {"type": "box", "center": [1.0, 1.0, 2.0], "size": [0.4, 6.0, 4.0], "yaw_deg": 0.0}
+    env = _env(_world([wall]))
+    cfg = TeacherConfig(lookahead=1)
+    costs = Teacher(cfg).action_costs(env)[0]
+    hover = DEFAULT_DIRECTIONS.index((0, 0, 0))
+    assert costs[FORWARD] >= cfg.crash_cost
+    assert costs[hover] < cfg.crash_cost
+
+
+def test_teacher_flies_a_slalom_to_its_goal() -> None:
+    panels = [
+        {"type": "box", "center": [6.0, 1.5, 2.0], "size": [0.5, 5.0, 4.0], "yaw_deg": 0.0},
+        {"type": "box", "center": [12.0, -1.5, 2.0], "size": [0.5, 5.0, 4.0], "yaw_deg": 0.0},
+    ]
+    env = _env(_world(panels), n=2)
+    teacher, outcomes = Teacher(), {}
+    for _ in range(60):
+        running = np.flatnonzero(~env.done)
+        actions = np.zeros(2, dtype=np.int64)
+        actions[running] = teacher.labels(env, running)
+        info = env.step(actions)[-1]
+        outcomes.update({int(i): info["outcome"][i] for i in running if info["outcome"][i] is not None})
+        if env.done.all():
+            break
+    assert outcomes == {0: "goal", 1: "goal"}
+
+
+def test_soft_targets_rank_as_the_costs_and_sum_to_one() -> None:
+    costs = np.array([[3.0, 1.0, 2.0, 100.0]])
+    p = soft_targets(costs, 0.5)
+    assert np.allclose(p.sum(axis=1), 1.0)
+    assert list(np.argsort(-p[0])) == [1, 2, 0, 3]
+
+
+@pytest.mark.parametrize("kw", [{"grid_m": 0.0}, {"margin_m": float("nan")}, {"lookahead": 3},
+                                {"crash_cost": -1.0}, {"setpoint_weight": float("inf")}])
+def test_bad_teacher_settings_are_refused_by_name(kw: dict) -> None:
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        TeacherConfig(**kw)
