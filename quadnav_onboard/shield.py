@@ -43,6 +43,7 @@ __all__ = [
     "ShieldConfig",
     "allowed_actions",
     "depth_points_heading",
+    "fence_clearance",
     "points_per_view",
     "primitive_clearance",
     "primitive_samples",
@@ -57,6 +58,7 @@ INPUT_SIZE = OUT_SIZE
 
 
 _OffsetM = Annotated[float, pydantic.Field(ge=-1, le=1)]
+_CoordM = Annotated[float, pydantic.Field(ge=-10_000, le=10_000)]
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,18 @@ class ShieldConfig:
     typically ~0.1 m forward. Remembered points and views are placed from the camera, not the
     body origin (the network itself was trained with the camera at the origin).
     Range: [-1, 1] m per axis."""
+    fence_min_m: tuple[_CoordM, _CoordM, _CoordM] | None = None
+    """Lowest corner (world, m, each in [-10 000, 10 000]) of the known room: the box the vehicle's
+    centre must stay in (a flight's geofence, intersected with a lab's walls less ``clearance_m``:
+    :meth:`with_room`). Known space, as the floor is: whether or not a view ever saw its faces, no
+    primitive whose predicted flown path (look-ahead included) comes nearer than
+    ``fence_margin_m`` to leaving the box is allowed. None (with ``fence_max_m``): no room known."""
+    fence_max_m: tuple[_CoordM, _CoordM, _CoordM] | None = None
+    """Highest corner (world, m, each in [-10 000, 10 000], above ``fence_min_m`` on every axis)
+    of the known room; None together with ``fence_min_m``."""
+    fence_margin_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.1
+    """How far (m) inside the known room's faces the predicted path must stay (the position loop's
+    tracking error beyond the prediction). Range: [0, 5], below ``clearance_m``."""
 
     def __post_init__(self) -> None:
         if not self.clearance_m > 0 or not self.search_radius_m > self.clearance_m:
@@ -156,6 +170,43 @@ class ShieldConfig:
             )
         if len(self.camera_offset_m) != 3 or not all(math.isfinite(v) for v in self.camera_offset_m):
             raise ValueError(f"camera_offset_m must be 3 finite numbers, got {self.camera_offset_m!r}")
+        lo, hi = self.fence_min_m, self.fence_max_m
+        if (lo is None) != (hi is None):
+            raise ValueError(f"give both fence_min_m and fence_max_m or neither, got {lo!r} and {hi!r}")
+        if lo is not None and hi is not None:
+            if len(lo) != 3 or len(hi) != 3 or not all(math.isfinite(v) for v in (*lo, *hi)):
+                raise ValueError(f"fence_min_m and fence_max_m must be 3 finite numbers, got {lo!r}, {hi!r}")
+            if not all(a < b for a, b in zip(lo, hi, strict=True)):
+                raise ValueError(f"fence_min_m {list(lo)} must be below fence_max_m {list(hi)} on every axis")
+        if not 0 <= self.fence_margin_m < self.clearance_m:
+            raise ValueError(
+                f"need 0 <= fence_margin_m < clearance_m, got fence_margin_m {self.fence_margin_m!r} and "
+                f"clearance_m {self.clearance_m!r}"
+            )
+
+    def with_fence(self, min_m: ArrayLike | None, max_m: ArrayLike | None) -> ShieldConfig:
+        """This filter with the box ``min_m`` .. ``max_m`` (world, m) where the vehicle's centre may
+        be (a geofence) intersected into the known room (None, None: unchanged)."""
+        if min_m is None or max_m is None:
+            return self
+        lo = np.asarray(min_m, dtype=np.float64)
+        hi = np.asarray(max_m, dtype=np.float64)
+        if not np.all(lo < hi):
+            raise ValueError(f"fence {lo.tolist()} .. {hi.tolist()}: lower corner not below the upper")
+        if self.fence_min_m is not None and self.fence_max_m is not None:
+            lo = np.maximum(lo, self.fence_min_m)
+            hi = np.minimum(hi, self.fence_max_m)
+        return replace(self, fence_min_m=tuple(float(v) for v in lo), fence_max_m=tuple(float(v) for v in hi))
+
+    def with_room(self, min_m: ArrayLike | None, max_m: ArrayLike | None) -> ShieldConfig:
+        """This filter knowing solid faces (walls, a ceiling) at the box ``min_m`` .. ``max_m``
+        (world, m, the space inside them): the centre keeps ``clearance_m`` from them, as from a
+        seen surface (None, None: unchanged)."""
+        if min_m is None or max_m is None:
+            return self
+        inset = self.clearance_m - self.fence_margin_m
+        return self.with_fence(np.asarray(min_m, dtype=np.float64) + inset,
+                               np.asarray(max_m, dtype=np.float64) - inset)
 
 
 def shield_at_scale(cfg: ShieldConfig, trained_scale_m: float, flown_scale_m: float) -> ShieldConfig:
@@ -503,6 +554,18 @@ def allowed_actions(
     return np.where(none, best, ok)
 
 
+def fence_clearance(
+    samples_world_m: ArrayLike, fence_min_m: ArrayLike, fence_max_m: ArrayLike
+) -> NDArray[np.float64]:
+    """Least distance (m) from each primitive's samples (N, A, S, 3) to the faces of the box
+    ``fence_min_m`` .. ``fence_max_m`` ((3,) or (N, 3), world), measured inwards: negative for a
+    primitive with a sample outside (by how far); shape (N, A)."""
+    s = np.asarray(samples_world_m, dtype=np.float64)
+    lo = np.asarray(fence_min_m, dtype=np.float64).reshape(-1, 1, 1, 3)
+    hi = np.asarray(fence_max_m, dtype=np.float64).reshape(-1, 1, 1, 3)
+    return np.minimum(s - lo, hi - s).min(axis=(-1, -2))
+
+
 def shield_verdict(
     prims: PrimitiveSet,
     points_world_m: ArrayLike,
@@ -515,12 +578,18 @@ def shield_verdict(
     vel_world_m_s: ArrayLike,
     cfg: ShieldConfig = ShieldConfig(),
     floor_z_m: ArrayLike | None = None,
+    fence_min_m: ArrayLike | None = None,
+    fence_max_m: ArrayLike | None = None,
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """The whole check for N vehicles, as the env and the flight daemon both run it: the allowed
     primitives (N, A) and their clearances (m, (N, A)). ``points_world_m``, ``view_depth_m`` and
     ``view_pose`` are a :class:`PointMemory`'s arrays (rows of these N vehicles), the view of this
     decision already added; ``floor_z_m`` (N,) the floor's height under each vehicle (NaN or None:
-    unknown; used with ``known_floor``); the rest as in :func:`primitive_samples`."""
+    unknown; used with ``known_floor``); ``fence_min_m``/``fence_max_m`` ((3,) or (N, 3)) the known
+    room of each vehicle (default: the config's ``fence_min_m``/``fence_max_m``; none: no room): a
+    primitive whose samples come within ``fence_margin_m`` of its faces gets a clearance below
+    ``clearance_m`` (vetoed; the least bad keep the most room); the rest as in
+    :func:`primitive_samples`."""
     samples = primitive_samples(
         prims, start_world_m, start_vel_world_m_s, yaw_rad, cfg,
         pos_world_m=pos_world_m, vel_world_m_s=vel_world_m_s,
@@ -530,6 +599,11 @@ def shield_verdict(
         floor = np.broadcast_to(np.asarray(floor_z_m, dtype=np.float64), clearance.shape[:1])[:, None]
         above = np.maximum(samples[..., 2].min(axis=-1) - floor, 0.0)  # NaN: floor unknown
         clearance = np.fmin(clearance, above)  # fmin keeps clearance where above is NaN
+    if fence_min_m is None or fence_max_m is None:
+        fence_min_m, fence_max_m = cfg.fence_min_m, cfg.fence_max_m
+    if fence_min_m is not None and fence_max_m is not None:
+        inside = fence_clearance(samples, fence_min_m, fence_max_m)  # less than the margin: vetoed
+        clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.fence_margin_m, 0.0))
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)

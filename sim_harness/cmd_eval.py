@@ -14,6 +14,7 @@ if TYPE_CHECKING:
     from quadnav_onboard.policy import Policy
     from quadnav_onboard.shield import ShieldConfig
     from sim_harness.env import EnvConfig
+    from sim_harness.rl.evaluate import FlightLimits
     from sim_harness.world import World
 
 __all__ = ["add_flight_flags", "add_parser", "at_flight_scale", "run", "shield_from_flags"]
@@ -42,6 +43,26 @@ def at_flight_scale(
     if scale == REFERENCE_SCALE_M:
         return env_cfg, worlds
     return at_primitive_scale(env_cfg, worlds, scale, max_steps)
+
+
+def _flight_setup(
+    policy: Policy, args: argparse.Namespace, worlds: list[World], paths: list[Path | str]
+) -> tuple[EnvConfig, list[World], FlightLimits]:
+    """``--flight-config``: the flight's mission in ``worlds`` (each checked against the config as
+    the daemon checks the path it flies), with ``--shield``/``--shield-set`` applied on top."""
+    from quadnav_onboard.daemon.config import check_mission_path, load_flight_config
+    from sim_harness.rl.evaluate import flight_eval_setup, override_shield
+
+    flight = load_flight_config(args.flight_config, require_waypoints=False)
+    env_cfg, flown, limits = flight_eval_setup(policy, flight, worlds, args.start_jitter_m)
+    for w, p in zip(flown, paths, strict=True):
+        where = "mission.waypoints_m" if flight.mission.waypoints_m is not None else f"{p} path.waypoints"
+        check_mission_path(flight, w.path, args.flight_config, where)
+    shield = env_cfg.shield
+    if args.shield != "model":
+        shield = dataclasses.replace(shield, enabled=args.shield == "on")
+    shield = override_shield(shield, args.shield_set)
+    return dataclasses.replace(env_cfg, shield=shield), flown, limits
 
 
 def _positive(text: str) -> float:
@@ -140,10 +161,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--start-jitter-m",
         type=_non_negative,
-        default=0.5,
+        default=None,
         metavar="M",
-        help="half-width of the random start offset per axis (default 0.5; 0: every trial starts on "
-        "the path's start, as the dry run does)",
+        help="half-width of the random start offset per axis (default 0.5, with --flight-config its "
+        "mission.start_tolerance_m; 0: every trial starts on the path's start, as the dry run does)",
     )
     p.add_argument(
         "--max-steps",
@@ -152,6 +173,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="step limit per flight (default 120, scaled with --primitive-scale)",
     )
     add_flight_flags(p, shield_default="model")
+    p.add_argument(
+        "--flight-config",
+        default=None,
+        metavar="FLIGHT.yaml",
+        help="fly each world under this flight config's mission (config/flight.yaml: its primitives, "
+        "speed, step limit, goal radius, deviation limit, waypoints when set, filter) with its "
+        "geofence and altitude band as stop conditions (safe, not a goal) and known to the filter; "
+        "not with --primitive-scale or --max-steps; --start-jitter-m defaults to its start_tolerance_m",
+    )
+    p.add_argument(
+        "--depth-noise",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="the D435-like depth noise model (sim_harness/noise.py) on the camera's frames; "
+        "auto: on with --flight-config, else off",
+    )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -178,6 +215,10 @@ def run(args: argparse.Namespace) -> int:
     if args.world and args.procedural is not None:
         print("quadnav-sim eval: give --world or --procedural N, not both", file=sys.stderr)
         return 2
+    if args.flight_config and (args.primitive_scale is not None or args.max_steps is not None):
+        print("quadnav-sim eval: --flight-config sets the primitives and the step limit: not with "
+              "--primitive-scale or --max-steps", file=sys.stderr)
+        return 2
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
     try:
         policy = Policy.from_path(model)
@@ -193,11 +234,21 @@ def run(args: argparse.Namespace) -> int:
                 else [paper_world_path(i) for i in range(1, 11)]
             )
             worlds = [load_world(p) for p in paths]
-        shield = shield_from_flags(policy, args)
-        env_cfg = env_config_for_policy(
-            policy, max_steps=args.max_steps or 120, start_jitter_m=args.start_jitter_m, shield=shield
-        )
-        env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, args.max_steps)
+        limits = None
+        if args.flight_config:
+            env_cfg, worlds, limits = _flight_setup(policy, args, worlds, paths)
+        else:
+            shield = shield_from_flags(policy, args)
+            jitter = 0.5 if args.start_jitter_m is None else args.start_jitter_m
+            env_cfg = env_config_for_policy(
+                policy, max_steps=args.max_steps or 120, start_jitter_m=jitter, shield=shield
+            )
+            env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, args.max_steps)
+        noise = None
+        if args.depth_noise == "on" or (args.depth_noise == "auto" and args.flight_config):
+            from sim_harness.noise import DepthNoise
+
+            noise = DepthNoise()
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2
@@ -209,6 +260,8 @@ def run(args: argparse.Namespace) -> int:
         args.seed,
         env_cfg,
         on_world_done=lambda _w: bar.update(1),
+        limits=limits,
+        depth_noise=noise,
     )
     bar.close()
     summary = summarize(rows)
@@ -229,6 +282,9 @@ def run(args: argparse.Namespace) -> int:
             "max_steps": env_cfg.max_steps,
             "primitive_scale_m": env_cfg.primitives.scale_m,
             "shield": dataclasses.asdict(env_cfg.shield),
+            "flight_config": args.flight_config,
+            "depth_noise": None if noise is None else dataclasses.asdict(noise),
+            "known_rooms": True,
             "worlds": [str(p) for p in paths],
             "rows": [r.to_dict() for r in rows],
             "summary": summary,

@@ -16,14 +16,14 @@ Pure: a function of the image, the config and the ``numpy.random.Generator`` pas
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Annotated
 
 import numpy as np
 import pydantic
 from numpy.typing import NDArray
 
-__all__ = ["DepthNoise", "apply_depth_noise"]
+__all__ = ["DepthNoise", "apply_depth_noise", "noise_at_width"]
 
 
 @dataclass(frozen=True)
@@ -79,3 +79,14 @@ def apply_depth_noise(
     drop |= edge & (rng.random(d.shape, dtype=np.float32) < cfg.edge_invalid_prob)
     drop |= rng.random(d.shape, dtype=np.float32) < cfg.dropout_prob
     return np.where(drop, np.float32(0.0), noisy).astype(np.float32)
+
+
+def noise_at_width(cfg: DepthNoise, width_px: int, camera_width_px: int = 424) -> DepthNoise:
+    """``cfg`` (written for a camera ``camera_width_px`` wide) for frames ``width_px`` wide of the
+    same field of view (the sim's 64 px training frames). An edge invalidates a band about one
+    camera pixel wide; a coarser frame's pixel spans ``camera_width_px / width_px`` of them, so its
+    edge pixels are dropped with proportionally lower probability: the same expected share of each
+    input cell lost at silhouettes. Axial noise and random dropout are per pixel and stay."""
+    if not 0 < width_px <= camera_width_px:
+        raise ValueError(f"need 0 < width_px <= camera_width_px, got {width_px} and {camera_width_px}")
+    return replace(cfg, edge_invalid_prob=cfg.edge_invalid_prob * width_px / camera_width_px)

@@ -8,6 +8,7 @@ A world is read from a YAML file with this contract (world frame: x forward, y l
       waypoints: [[0, 0, 2], [60, 0, 2]]
       speed_m_s: 1.0                 # optional, default 1.0
     bounds: {floor_z: 0.0, ceiling_z: 8.0}   # optional; floor and ceiling are solid
+    room: {x: [-0.9, 3.4], y: [-0.9, 3.4]}   # optional: a room's walls (their inner faces, m)
     obstacles:                       # optional list; `center` is each shape's geometric centre
       - {type: box, center: [10, 1.5, 2], size: [1, 3, 4], yaw_deg: 0}
       - {type: sphere, center: [50, 0, 2], radius: 1.2}
@@ -20,6 +21,12 @@ simulated quad's radius) to spare; a path starting inside a box would crash on t
 above the ceiling could never be flown. The take-off climb, straight up from the ground below the
 start (the floor, or z = 0 without one) as the emulated vehicle flies it, must be clear too. The
 segments between waypoints may cross obstacles: flying round them is the planner's job.
+
+``room`` (a lab) gives the inner faces of four walls along the world axes; it needs a floor and a
+ceiling, and the walls (:data:`WALL_THICKNESS_M` thick, floor to ceiling) are solid like any
+obstacle (:attr:`World.walls`, packed after ``obstacles``). Unlike obstacles they are *known*: the
+depth safety filter keeps its clearance from them whether or not a view saw them
+(:meth:`World.room_box_m`, :attr:`quadnav_onboard.shield.ShieldConfig.fence_min_m`).
 Every world also carries :class:`Geometry`, the obstacles packed into arrays for the ray caster
 (:mod:`sim_harness.render`) and the collision checker (:mod:`sim_harness.collision`).
 """
@@ -42,6 +49,7 @@ __all__ = [
     "MAX_SPEED_M_S",
     "TEST_WORLD_IDS",
     "TRAIN_WORLD_IDS",
+    "WALL_THICKNESS_M",
     "WAYPOINT_CLEARANCE_M",
     "WORLDS_DIR",
     "WORLD_LIMIT_M",
@@ -72,6 +80,9 @@ WAYPOINT_CLEARANCE_M = 0.3
 """Least distance (m) from every waypoint to the floor, the ceiling and each obstacle: the radius of
 the simulated quad (``sim_harness.quad.QuadParams.radius_m``), so it can be at each waypoint
 without touching anything."""
+
+WALL_THICKNESS_M = 0.2
+"""Thickness (m) of the walls a world's ``room`` builds."""
 
 # Shape codes in Geometry.kind.
 KIND_BOX, KIND_SPHERE, KIND_CYLINDER = 0, 1, 2
@@ -197,12 +208,43 @@ class World:
     """Height (m) of a solid ceiling, or None."""
     obstacles: tuple[Obstacle, ...] = ()
     """Solid obstacles."""
+    room_xy_m: tuple[tuple[float, float], tuple[float, float]] | None = None
+    """Inner faces of a room's walls: ((x_min, x_max), (y_min, y_max)) (world, m), or None. Needs
+    a floor and a ceiling."""
     geometry: Geometry = field(init=False, repr=False, compare=False)
-    """The obstacles packed into arrays (derived)."""
+    """The obstacles and the room's walls packed into arrays (derived)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
-        object.__setattr__(self, "geometry", Geometry.pack(self.obstacles, self.floor_z_m, self.ceiling_z_m))
+        if self.room_xy_m is not None and (self.floor_z_m is None or self.ceiling_z_m is None):
+            raise ValueError(f"world {self.name!r}: a room needs a floor and a ceiling")
+        object.__setattr__(
+            self, "geometry", Geometry.pack(self.obstacles + self.walls, self.floor_z_m, self.ceiling_z_m)
+        )
+
+    @property
+    def walls(self) -> tuple[Box, ...]:
+        """The room's four walls (boxes, floor to ceiling, outside its inner faces); () without a room."""
+        if self.room_xy_m is None or self.floor_z_m is None or self.ceiling_z_m is None:
+            return ()
+        (x0, x1), (y0, y1) = self.room_xy_m
+        t, z0, z1 = WALL_THICKNESS_M, self.floor_z_m, self.ceiling_z_m
+        zc, h = (z0 + z1) / 2.0, z1 - z0
+        wx, wy = x1 - x0 + 2 * t, y1 - y0 + 2 * t
+        return (
+            Box((x0 - t / 2, (y0 + y1) / 2, zc), (t, wy, h)),
+            Box((x1 + t / 2, (y0 + y1) / 2, zc), (t, wy, h)),
+            Box(((x0 + x1) / 2, y0 - t / 2, zc), (wx, t, h)),
+            Box(((x0 + x1) / 2, y1 + t / 2, zc), (wx, t, h)),
+        )
+
+    def room_box_m(self) -> tuple[Vec3, Vec3] | None:
+        """The room as the filter knows it: lowest and highest corner (world, m) of the space inside
+        the walls, from the floor to the ceiling; None without a room."""
+        if self.room_xy_m is None or self.floor_z_m is None or self.ceiling_z_m is None:
+            return None
+        (x0, x1), (y0, y1) = self.room_xy_m
+        return (x0, y0, self.floor_z_m), (x1, y1, self.ceiling_z_m)
 
 
 # ---------------------------------------------------------------------------------------------- parsing
@@ -273,9 +315,32 @@ def _parse_obstacle(entry: Any, where: str) -> Obstacle:
                     _positive(entry["height"], where, "height"), axis)
 
 
+def _parse_room(
+    value: Any, where: str, floor: float | None, ceiling: float | None
+) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    if value is None:
+        return None
+    room = _mapping(value, where, ("x", "y"), ("x", "y"))
+    if floor is None or ceiling is None:
+        raise WorldError(f"{where}: a room needs 'bounds' with both floor_z and ceiling_z")
+    out = []
+    for key in ("x", "y"):
+        span = room[key]
+        if not isinstance(span, (list, tuple)) or len(span) != 2:
+            raise WorldError(f"{where}: '{key}' must be [min, max] (m), got {span!r}")
+        lo, hi = (_number(v, where, key) for v in span)
+        if not hi - lo > 2 * WAYPOINT_CLEARANCE_M:
+            raise WorldError(f"{where}: '{key}' {list(span)}: max must exceed min by more than "
+                             f"{2 * WAYPOINT_CLEARANCE_M:g} m")
+        out.append((lo, hi))
+    return (out[0], out[1])
+
+
 def parse_world(mapping: Any, source: str = "<world>") -> World:
     """Validate a mapping (e.g. loaded YAML) into a :class:`World`; errors name ``source`` and the entry."""
-    top = _mapping(mapping, source, ("name", "path"), ("name", "description", "path", "bounds", "obstacles"))
+    top = _mapping(
+        mapping, source, ("name", "path"), ("name", "description", "path", "bounds", "obstacles", "room")
+    )
     name = top["name"]
     if not isinstance(name, str) or not name.strip():
         raise WorldError(f"{source}: name: must be a non-empty string, got {name!r}")
@@ -312,8 +377,9 @@ def parse_world(mapping: Any, source: str = "<world>") -> World:
     if not isinstance(raw_obs, (list, tuple)):
         raise WorldError(f"{source}: obstacles: must be a list, got {type(raw_obs).__name__}")
     obstacles = tuple(_parse_obstacle(e, f"{source}: obstacles[{i}]") for i, e in enumerate(raw_obs))
+    room = _parse_room(top.get("room"), f"{source}: room", floor, ceiling)
     world = World(name=name.strip(), path=rough, description=description.strip(), floor_z_m=floor,
-                  ceiling_z_m=ceiling, obstacles=obstacles)
+                  ceiling_z_m=ceiling, obstacles=obstacles, room_xy_m=room)
     _check_waypoints_free(world, source)
     return world
 
@@ -358,6 +424,11 @@ def _check_waypoints_free(world: World, source: str) -> None:
         if world.ceiling_z_m is not None and wp[2] > world.ceiling_z_m - r:
             what = "above the ceiling" if wp[2] > world.ceiling_z_m else f"within {r} m of the ceiling"
             raise WorldError(f"{where}: {what} (bounds.ceiling_z {world.ceiling_z_m})")
+        if world.room_xy_m is not None:
+            (x0, x1), (y0, y1) = world.room_xy_m
+            if not (x0 + r <= wp[0] <= x1 - r and y0 + r <= wp[1] <= y1 - r):
+                raise WorldError(f"{where}: outside the room or within {r} m of its walls "
+                                 f"(room.x {[x0, x1]}, room.y {[y0, y1]})")
     if not world.obstacles:
         return
     for k in np.flatnonzero(clearance_m(world, wps) < r):
@@ -404,6 +475,8 @@ def world_to_mapping(world: World) -> dict[str, Any]:
     bounds = {k: v for k, v in pairs if v is not None}
     if bounds:
         out["bounds"] = bounds
+    if world.room_xy_m is not None:
+        out["room"] = {"x": list(world.room_xy_m[0]), "y": list(world.room_xy_m[1])}
     return out
 
 

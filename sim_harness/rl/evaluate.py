@@ -4,29 +4,46 @@ Each world runs its ``trials`` episodes together in one :class:`VecQuadNavEnv` (
 trials differ by their seeded start jitter. Rows hold the paper's columns (navigation distance m,
 navigation time s, crash Y/N, total reward) plus the outcome. ``summarize`` counts success (goal),
 collision-free flights and success among the collision-free ones.
+
+A world's known room (its walls and ceiling, :meth:`sim_harness.world.World.room_box_m`) is given
+to the depth safety filter as known space, as the floor already is. Flown under a flight config
+(:func:`flight_eval_setup`), the eval also stops a flight as the flight supervisor would on the
+config's geofence and altitude band (outcomes ``geofence`` and ``altitude``: safe, not a goal;
+checked at each step's end, where the supervisor checks at 50 Hz), intersects the geofence into
+the filter's room, and renders with the D435-like depth noise (:mod:`sim_harness.noise`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from quadnav_onboard.config import PrimitiveConfig, parse_config
+from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy, masked_argmax
-from quadnav_onboard.shield import ShieldConfig, shield_config_from_meta
+from quadnav_onboard.preprocess import depth_inputs_mm
+from quadnav_onboard.shield import ShieldConfig, shield_at_scale, shield_config_from_meta
 from sim_harness.env import EnvConfig, VecQuadNavEnv
-from sim_harness.world import World
+from sim_harness.noise import DepthNoise, apply_depth_noise, noise_at_width
+from sim_harness.render import D435_424x240, render_input_frames_mm
+from sim_harness.world import WORLD_LIMIT_M, World
+
+if TYPE_CHECKING:
+    from quadnav_onboard.daemon.config import FlightConfig
 
 __all__ = [
     "EvalRow",
+    "FlightLimits",
     "GreedyFn",
     "env_config_for_policy",
     "evaluate",
+    "flight_eval_setup",
     "format_table",
+    "known_room",
     "override_shield",
     "policy_greedy_fn",
     "scores",
@@ -55,7 +72,7 @@ class EvalRow:
     total_reward: float
     """Sum of the paper's rewards over the flight."""
     outcome: str
-    """goal | crash | deviation | timeout."""
+    """goal | crash | deviation | timeout, and under a flight config geofence | altitude."""
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -96,6 +113,109 @@ def override_shield(shield: ShieldConfig, pairs: Sequence[str]) -> ShieldConfig:
     return parse_config(ShieldConfig, data, source="--shield-set")
 
 
+@dataclasses.dataclass(frozen=True)
+class FlightLimits:
+    """A flight config's stop conditions the eval applies itself (the supervisor's, in flight)."""
+
+    geofence_min_m: tuple[float, float, float]
+    """Lowest corner (world, m) of the geofence."""
+    geofence_max_m: tuple[float, float, float]
+    """Highest corner (world, m) of the geofence."""
+    altitude_floor_m: float
+    """Lowest allowed height (world z, m)."""
+    altitude_ceiling_m: float
+    """Highest allowed height (world z, m)."""
+
+    def stop(self, pos_world_m: NDArray[np.float64]) -> NDArray[np.object_]:
+        """Per position (N, 3): ``"geofence"``, ``"altitude"`` or None (inside both)."""
+        p = np.asarray(pos_world_m, dtype=np.float64)
+        out = np.full(p.shape[0], None, dtype=object)
+        z = p[:, 2]
+        out[(z < self.altitude_floor_m) | (z > self.altitude_ceiling_m)] = "altitude"
+        lo, hi = np.asarray(self.geofence_min_m), np.asarray(self.geofence_max_m)
+        out[((p < lo) | (p > hi)).any(axis=1)] = "geofence"
+        return out
+
+
+def known_room(shield: ShieldConfig, world: World, limits: FlightLimits | None = None) -> ShieldConfig:
+    """``shield`` knowing ``world``'s room: its walls, floor and ceiling as solid faces
+    (:meth:`~quadnav_onboard.shield.ShieldConfig.with_room`; a world without walls: its ceiling),
+    and the geofence of ``limits`` as the box the centre must stay in."""
+    big = WORLD_LIMIT_M
+    room = world.room_box_m()
+    if room is None and world.ceiling_z_m is not None:
+        floor = world.floor_z_m if world.floor_z_m is not None else -big
+        room = ((-big, -big, floor), (big, big, world.ceiling_z_m))
+    if room is not None:
+        shield = shield.with_room(*room)
+    if limits is not None:
+        shield = shield.with_fence(limits.geofence_min_m, limits.geofence_max_m)
+    return shield
+
+
+def flight_eval_setup(
+    policy: Policy, flight: FlightConfig, worlds: Sequence[World], start_jitter_m: float | None = None
+) -> tuple[EnvConfig, list[World], FlightLimits]:
+    """The env, worlds and stop conditions of ``flight``'s mission flown in ``worlds``: its
+    primitives (else the checkpoint's), filter (else the checkpoint's, its memory kept in distance
+    flown), moving-setpoint speed, step limit, goal radius, deviation limit, geofence and altitude
+    band; its waypoints (when set) replace each world's path, as in a dry run. The start jitter
+    defaults to the mission's ``start_tolerance_m`` (where the flight begins)."""
+    m, s = flight.mission, flight.safety
+    trained = parse_config(PrimitiveConfig, policy.checkpoint.primitives, source="checkpoint.primitives")
+    prims = flight.primitives or trained
+    shield = flight.shield if flight.shield is not None else shield_config_from_meta(policy.checkpoint.meta)
+    if flight.shield is None:
+        shield = shield_at_scale(shield, trained.scale_m, prims.scale_m)
+    base = env_config_for_policy(
+        policy,
+        max_steps=m.max_steps,
+        start_jitter_m=m.start_tolerance_m if start_jitter_m is None else start_jitter_m,
+        shield=shield,
+    )
+    env_cfg = dataclasses.replace(
+        base,
+        primitives=prims,
+        goal_radius_m=m.goal_radius_m,
+        reward=dataclasses.replace(base.reward, max_deviation_m=s.max_deviation_m),
+    )
+    flown = []
+    for w in worlds:
+        path = (
+            RoughPath(np.asarray(m.waypoints_m, dtype=np.float64), m.speed_m_s)
+            if m.waypoints_m is not None
+            else dataclasses.replace(w.path, speed_m_s=m.speed_m_s)
+        )
+        flown.append(dataclasses.replace(w, path=path))
+    limits = FlightLimits(
+        tuple(s.geofence_min_m), tuple(s.geofence_max_m), s.altitude_floor_m, s.altitude_ceiling_m
+    )
+    return env_cfg, flown, limits
+
+
+class _NoisyDepthEnv(VecQuadNavEnv):
+    """The env with the D435-like noise model on the sim camera's frames before preprocessing (at
+    their width: :func:`sim_harness.noise.noise_at_width`)."""
+
+    def __init__(self, *args: Any, noise: DepthNoise, noise_seed: int, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._noise = noise
+        self._noise_rng = np.random.default_rng(noise_seed)
+
+    def _observe(self, ids: NDArray[np.int64], world: World, yaw: NDArray) -> tuple[NDArray, NDArray]:
+        shield = self.config.shield
+        nearest = self.memory is not None and shield.depth_pooling == "min"
+        frames = render_input_frames_mm(world, self.pos_m[ids], yaw)
+        cam = D435_424x240
+        noise = noise_at_width(self._noise, frames.shape[-1], cam.width)
+        noisy_m = apply_depth_noise(frames.astype(np.float32) / 1000.0, noise, self._noise_rng,
+                                    max_range_m=cam.max_range_m)
+        noisy_mm = np.round(noisy_m * 1000.0).clip(0, 65535).astype(np.uint16)
+        depth, near = depth_inputs_mm(noisy_mm, self.config.preprocess, nearest=nearest)
+        assert depth is not None
+        return depth, depth if near is None else near
+
+
 def policy_greedy_fn(policy: Policy) -> GreedyFn:
     return lambda depth, rel, allowed: masked_argmax(policy.q_values_batch(depth, rel), allowed)
 
@@ -107,19 +227,42 @@ def evaluate(
     seed: int,
     env_config: EnvConfig = EnvConfig(),
     on_world_done: Callable[[World], None] | None = None,
+    *,
+    limits: FlightLimits | None = None,
+    depth_noise: DepthNoise | None = None,
+    known_rooms: bool = True,
 ) -> list[EvalRow]:
-    """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order."""
+    """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order.
+
+    ``limits``: a flight config's geofence and altitude band, checked at each step's end (outcomes
+    ``geofence``/``altitude``) and, with ``known_rooms``, the geofence given to the filter with the
+    world's room (:func:`known_room`). ``depth_noise``: the D435-like noise on every frame."""
     rows: list[EvalRow] = []
     for w_i, world in enumerate(worlds):
-        env = VecQuadNavEnv([world], trials, seed=seed * 1009 + w_i, config=env_config, autoreset=False)
+        cfg = env_config
+        if known_rooms and cfg.shield.enabled:
+            cfg = dataclasses.replace(cfg, shield=known_room(cfg.shield, world, limits))
+        w_seed = seed * 1009 + w_i
+        if depth_noise is None:
+            env = VecQuadNavEnv([world], trials, seed=w_seed, config=cfg, autoreset=False)
+        else:
+            env = _NoisyDepthEnv([world], trials, seed=w_seed, config=cfg, autoreset=False,
+                                 noise=depth_noise, noise_seed=w_seed + 7919)
         depth, rel = env.reset()
         outcome = np.full(trials, None, dtype=object)
         progress = np.zeros(trials)
         while not env.done.all():
+            running = ~env.done
             depth, rel, _, term, trunc, info = env.step(act(depth, rel, env.allowed))
             ended = term | trunc
             outcome[ended] = info["outcome"][ended]
             progress[ended] = info["progress_m"][ended]
+            if limits is not None:
+                stop = limits.stop(env.pos_m)
+                hit = running & ~ended & (stop != None)  # noqa: E711 (object array)
+                outcome[hit] = stop[hit]
+                progress[hit] = info["progress_m"][hit]
+                env.done[hit] = True
         for t in range(trials):
             rows.append(
                 EvalRow(
