@@ -98,9 +98,10 @@ def test_fit_learns_the_labels() -> None:
     target[np.arange(256), label] = 0.99
     data.add(depth, rel, target, 0)
     before = np.mean(agent.greedy(depth, rel) == label)
-    fit(agent, data, 30.0, 64, rng, torch.optim.Adam(agent.q.parameters(), lr=1e-3))
+    _, agreement = fit(agent, data, 30.0, 64, rng, torch.optim.Adam(agent.q.parameters(), lr=1e-3))
     after = np.mean(agent.greedy(depth, rel) == label)
     assert after > 0.95 and after > before
+    assert agreement > 0.9
     for p, q in zip(agent.q.parameters(), agent.target.parameters(), strict=True):
         assert torch.equal(p, q)
 

@@ -149,16 +149,16 @@ class TrainConfig:
     scale of ``imitation_scales``, labelling every visited state with the teacher
     (sim_harness.rl.teacher: a search over the primitives against the true world) and fitting
     the network to all labels so far. 0 = none (the paper). Range: [0, 1000]."""
-    dagger_episodes: Annotated[int, pydantic.Field(ge=1, le=1_000_000)] = 64
+    dagger_episodes: Annotated[int, pydantic.Field(ge=1, le=1_000_000)] = 40
     """Episodes per DAgger iteration and scale. Range: [1, 10^6]."""
     dagger_beta: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.5
     """In DAgger iteration i the teacher flies a step with probability ``dagger_beta ** i``
     (iteration 0: the teacher alone), the network otherwise. Range: [0, 1]."""
-    imitation_epochs: Annotated[float, pydantic.Field(gt=0, le=1000)] = 2.0
+    imitation_epochs: Annotated[float, pydantic.Field(gt=0, le=1000)] = 5.0
     """Passes over the aggregated labels after each DAgger iteration. Range: (0, 1000]."""
     imitation_lr: Annotated[float, pydantic.Field(gt=0, le=1)] = 1e-3
     """Adam step size of the imitation fits. Range: (0, 1]."""
-    imitation_temperature_m: Annotated[float, pydantic.Field(gt=0, le=100)] = 0.25
+    imitation_temperature_m: Annotated[float, pydantic.Field(gt=0, le=100)] = 0.1
     """Temperature (m of the teacher's cost) of the soft targets: softmax(-cost / T).
     Range: (0, 100]."""
     imitation_buffer: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 300_000
@@ -171,7 +171,8 @@ class TrainConfig:
     """With ``dagger_iterations`` > 0: stop after the imitation (no RL episodes; ``episodes``
     is then unused)."""
     teacher_lookahead: Annotated[int, pydantic.Field(ge=1, le=2)] = 2
-    """Primitives the teacher looks ahead. Range: [1, 2]."""
+    """Primitives the teacher flies from a state: 1, or 2 (the second only to find dead ends).
+    Range: [1, 2]."""
     teacher_margin_m: Annotated[float, pydantic.Field(gt=0, le=1)] = 0.15
     """Clearance beyond the quad's radius the teacher keeps from the true geometry.
     Range: (0, 1]."""

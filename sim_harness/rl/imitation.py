@@ -124,11 +124,13 @@ def collect(
 
 
 def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
-        optimizer: torch.optim.Optimizer) -> float:
+        optimizer: torch.optim.Optimizer) -> tuple[float, float]:
     """``epochs`` passes (fractions allowed) of cross-entropy between softmax(Q) and the targets;
-    returns the mean loss. The target network is set to the result."""
+    returns the mean loss and the share of the last tenth's samples whose arg-max Q is the
+    teacher's first choice. The target network is set to the result."""
     n_batches = max(1, round(epochs * len(data) / batch_size))
-    losses = []
+    losses: list[float] = []
+    agree: list[float] = []
     agent.q.train()
     for _ in range(n_batches):
         idx = rng.integers(0, len(data), size=min(batch_size, len(data)))
@@ -142,8 +144,10 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
         torch.nn.utils.clip_grad_norm_(agent.q.parameters(), 10.0)
         optimizer.step()
         losses.append(float(loss.detach()))
+        agree.append(float((q.argmax(dim=1) == target.argmax(dim=1)).float().mean()))
     agent.target.load_state_dict(agent.q.state_dict())
-    return float(np.mean(losses))
+    last = max(1, n_batches // 10)
+    return float(np.mean(losses)), float(np.mean(agree[-last:]))
 
 
 def dagger(
@@ -179,10 +183,11 @@ def dagger(
                 "iteration": it, "beta": round(beta, 6), "scale_m": cfg.primitives.scale_m,
                 "outcomes": counts, "dataset": len(data),
             })
-        loss = fit(agent, data, s.epochs, s.batch_size, rng, optimizer)
+        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer)
         records[-1]["loss"] = round(loss, 6)
+        records[-1]["agreement"] = round(agreement, 4)
         records[-1]["wall_s"] = round(time.monotonic() - t0, 2)
         log.info("dagger iteration", iteration=it, beta=round(beta, 4), dataset=len(data),
-                 loss=round(loss, 4), outcomes=[r["outcomes"] for r in records[-len(envs):]],
-                 wall_s=records[-1]["wall_s"])
+                 loss=round(loss, 4), agreement=round(agreement, 3),
+                 outcomes=[r["outcomes"] for r in records[-len(envs):]], wall_s=records[-1]["wall_s"])
     return records
