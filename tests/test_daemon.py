@@ -87,7 +87,7 @@ class Rig:
                 lambda: (
                     self.daemon.in_mission
                     and self.daemon.pending_step is not None
-                    and self.daemon.pending_step["step"] >= min_steps - 1
+                    and self.daemon.pending_step.step >= min_steps - 1
                 )
             )
             action()
@@ -191,7 +191,7 @@ async def test_a_bad_frame_early_in_a_step_stops_the_flight_before_the_next_step
     timing: dict[str, float] = {}
 
     async def blank_frames_after_step_1() -> None:
-        await rig.when(lambda: rig.daemon.pending_step is not None and rig.daemon.pending_step["step"] >= 1)
+        await rig.when(lambda: rig.daemon.pending_step is not None and rig.daemon.pending_step.step >= 1)
         timing["to_boundary_s"] = rig.daemon.next_step_mono - time.monotonic()  # type: ignore[operator]
         t_bad = time.monotonic()
         rig.depth.depth_mm = 0

@@ -1,8 +1,7 @@
-"""The flight summary (the paper's row + latency figures) and small adapters for optional parts."""
+"""The flight summary: the paper's row, why the flight stopped, and its timing figures."""
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -10,10 +9,10 @@ from typing import TYPE_CHECKING, Any
 from quadnav_onboard.logs import get_logger
 
 if TYPE_CHECKING:
-    from quadnav_onboard.daemon.loops import RunStats
+    from quadnav_onboard.daemon.stats import RunStats
     from quadnav_onboard.daemon.supervisor import StopReason
 
-__all__ = ["FlightSummary", "NullNotifier", "SafeRecorder"]
+__all__ = ["FlightSummary"]
 
 log = get_logger("quadnav.daemon")
 
@@ -164,50 +163,3 @@ class FlightSummary:
             v = self.vision_forwards
             lines.append(f"vision forwards to PX4: {v['sent']} sent, {v['failed']} failed")
         return lines
-
-
-class SafeRecorder:
-    """Calls the flight recorder but never lets it break the flight (missing, failing or None)."""
-
-    def __init__(self, recorder: Any) -> None:
-        self._rec = recorder
-        self._failed: set[str] = set()
-
-    def __getattr__(self, name: str) -> Any:
-        target = getattr(self._rec, name, None) if self._rec is not None else None
-
-        def call(*args: Any, **kwargs: Any) -> Any:
-            if target is None:
-                return None
-            try:
-                return target(*args, **kwargs)
-            except Exception as exc:
-                if name not in self._failed:
-                    self._failed.add(name)
-                    log.error("recorder_failed", method=name, error=f"{type(exc).__name__}: {exc}")
-                return None
-
-        return call
-
-
-class NullNotifier:
-    """Stands in for quadnav_onboard.sdnotify.SdNotifier when not under systemd."""
-
-    def ready(self, status: str | None = None) -> bool:
-        return False
-
-    def watchdog(self) -> bool:
-        return False
-
-    def status(self, text: str) -> bool:
-        return False
-
-    def stopping(self) -> bool:
-        return False
-
-    def watchdog_interval_s(self) -> float | None:
-        return None
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            pass
