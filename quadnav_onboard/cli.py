@@ -30,8 +30,18 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="exit codes: 0 goal reached, 1 internal error, 2 refused before arming, 3 safe abort, 4 crash",
     )
     p.add_argument("--config", metavar="FLIGHT.yaml", help="flight configuration (see config/flight.yaml)")
-    p.add_argument("--dry-run", action="store_true", help="fly in the sim harness with the bundled model")
-    p.add_argument("--world", metavar="WORLD.yaml", help="with --dry-run: world file to fly (default: Env 1)")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="fly in the sim harness: the config's mission, limits and filter; a config naming real "
+        "hardware (a uvc camera or a serial autopilot, config/flight.yaml) gets the sim's vehicle, "
+        "depth (with the D435-like noise), odometry, trigger and record directory (docs/hardware.md)",
+    )
+    p.add_argument(
+        "--world",
+        metavar="WORLD.yaml",
+        help="with --dry-run: world file to fly, or a shipped world's name (lab02; default: Env 1)",
+    )
     p.add_argument(
         "--in-process",
         action="store_true",
@@ -86,7 +96,12 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(json={"auto": None, "json": True, "console": False}[args.log_format])
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
-    from quadnav_onboard.daemon.config import default_sim_config, load_flight_config
+    from quadnav_onboard.daemon.config import (
+        default_sim_config,
+        dry_run_config,
+        flies_hardware,
+        load_flight_config,
+    )
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
 
     if args.world and not args.dry_run:
@@ -104,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.config
             else default_sim_config()
         )
+        args.depth_noise = bool(args.dry_run and flies_hardware(cfg))
+        if args.dry_run:
+            cfg = dry_run_config(cfg)
         if args.record_dir:
             cfg = replace(cfg, record=replace(cfg.record, directory=args.record_dir))
         if args.no_record:
@@ -171,9 +189,16 @@ def _fly(
     import torch
 
     from quadnav_onboard.daemon.app import FlightDaemon
+    from quadnav_onboard.daemon.config import room_aware_shield
     from quadnav_onboard.record.flight import describe_flight
 
     torch.set_num_threads(1)
+    room = None
+    if args.dry_run:
+        from quadnav_onboard.daemon.dryrun import DryRun
+
+        room = DryRun(cfg, args.world).world.room_box_m()  # reads the world file only
+    cfg = replace(cfg, shield=room_aware_shield(cfg, policy.checkpoint.meta, room))
     meta = {
         "config": json.dumps(asdict(cfg), default=str),
         "model_path": str(model_path),
@@ -187,7 +212,8 @@ def _fly(
 
             wiring = DryRun if args.in_process else ProcessDryRun
             sitl = None if args.px4_sitl is None else {"port": args.px4_sitl}
-            sim = stack.enter_context(wiring(cfg, args.world, sitl=sitl))
+            noise = getattr(args, "depth_noise", False)
+            sim = stack.enter_context(wiring(cfg, args.world, sitl=sitl, depth_noise=noise))
             cfg = sim.cfg
             parts = sim.parts()
             meta["world"] = str(sim.world_path)

@@ -209,15 +209,13 @@ class World:
     obstacles: tuple[Obstacle, ...] = ()
     """Solid obstacles."""
     room_xy_m: tuple[tuple[float, float], tuple[float, float]] | None = None
-    """Inner faces of a room's walls: ((x_min, x_max), (y_min, y_max)) (world, m), or None. Needs
-    a floor and a ceiling."""
+    """Inner faces of a room's walls: ((x_min, x_max), (y_min, y_max)) (world, m), or None. The
+    walls stand from the floor to the ceiling: without both (a copy made for a check) there are none."""
     geometry: Geometry = field(init=False, repr=False, compare=False)
     """The obstacles and the room's walls packed into arrays (derived)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
-        if self.room_xy_m is not None and (self.floor_z_m is None or self.ceiling_z_m is None):
-            raise ValueError(f"world {self.name!r}: a room needs a floor and a ceiling")
         object.__setattr__(
             self, "geometry", Geometry.pack(self.obstacles + self.walls, self.floor_z_m, self.ceiling_z_m)
         )
@@ -494,9 +492,20 @@ def paper_world_path(i: int) -> Path:
 
 
 def resolve_world_arg(arg: str) -> Path:
-    """A command-line world: a file path, or a paper world id (``env04``, ``4``, ``env04-slalom-lr``)."""
+    """A command-line world: a file path, a paper world id (``env04``, ``4``, ``env04-slalom-lr``),
+    or a shipped world by name or its start (``lab02``, ``lab02.yaml``, ``lab02-two-boxes.yaml``),
+    looked up in sim_harness/worlds/ when no such file exists."""
     p = Path(arg)
-    if p.suffix in (".yaml", ".yml") or p.exists():
+    if p.exists():
+        return p
+    if p.parent == Path(".") and not arg.lower().startswith("env"):
+        stem = p.stem if p.suffix in (".yaml", ".yml") else p.name
+        shipped = sorted(WORLDS_DIR.glob(f"{stem}.yaml")) or sorted(WORLDS_DIR.glob(f"{stem}-*.yaml"))
+        if len(shipped) == 1:
+            return shipped[0]
+        if len(shipped) > 1:
+            raise WorldError(f"world {arg!r}: matches {[s.name for s in shipped]} in {WORLDS_DIR}; give one")
+    if p.suffix in (".yaml", ".yml"):
         return p
     key = arg.lower().removeprefix("env").split("-", 1)[0]
     if key.isdigit():

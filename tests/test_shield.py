@@ -337,3 +337,82 @@ def test_shield_error_script_compares_predicted_and_true_clearance(tmp_path):
     assert abs(e["p50"]) < 0.2  # the same samples against the same walls: the filter is right on the median
     held_out = subprocess.run([sys.executable, str(script), "--envs", "8"], capture_output=True, text=True)
     assert held_out.returncode == 2 and "held out" in held_out.stderr
+
+
+def _blind_verdict(cfg: ShieldConfig, pos: np.ndarray, yaw: float = 0.0, **kw: object) -> tuple:
+    """The verdict at ``pos`` (1, 3), standing still, after a view that saw nothing at all."""
+    from quadnav_onboard.shield import shield_verdict
+
+    mem = PointMemory(1, cfg)
+    mem.add([0], np.ones((1, 32, 32), np.float32), pos, np.full(1, yaw))
+    still = (pos, np.zeros((1, 3)), np.full(1, yaw), pos, np.zeros((1, 3)))
+    return shield_verdict(PRIMS, mem.points, mem.depth_m, mem.pose, *still, cfg, **kw)
+
+
+def test_a_primitive_leaving_the_geofence_is_vetoed_though_no_view_saw_the_wall():
+    """The view saw nothing (no wall, no point): 0.8 m inside the fence's +y face (on the left),
+    the primitives that step left 1 m would leave the fence less its margin and are vetoed; every
+    other one stays allowed. Without the fence all are allowed: the camera alone never knew."""
+    fence = ShieldConfig(enabled=True, fence_min_m=(-10.0, -10.0, -1.0), fence_max_m=(10.0, 0.8, 10.0))
+    pos = np.array([[0.0, 0.0, 1.5]])
+    allowed, clearance = _blind_verdict(fence, pos)
+    for a, (f, lat, v) in enumerate(DEFAULT_DIRECTIONS):
+        assert allowed[0, a] == (lat <= 0), (f, lat, v)
+    left = DEFAULT_DIRECTIONS.index((0, 1, 0))
+    assert clearance[0, left] < fence.clearance_m
+    blind, _ = _blind_verdict(ON, pos)
+    assert blind.all()
+
+
+def test_the_fence_is_in_the_world_frame_whatever_the_heading():
+    """Heading 90 deg left (forward = world +y): now the forward primitives leave the +y face."""
+    fence = ShieldConfig(enabled=True, fence_min_m=(-10.0, -10.0, -1.0), fence_max_m=(10.0, 0.8, 10.0))
+    allowed, _ = _blind_verdict(fence, np.array([[0.0, 0.0, 1.5]]), yaw=math.pi / 2)
+    for a, (f, lat, v) in enumerate(DEFAULT_DIRECTIONS):
+        assert allowed[0, a] == (f <= 0), (f, lat, v)
+
+
+def test_a_fence_passed_per_call_overrides_the_configs_and_outside_it_the_most_inward_is_chosen():
+    """Per-vehicle fences (N, 3) as the env would pass them; a vehicle already outside the fence's
+    margin gets the primitives that go back in most (the least bad), not every primitive."""
+    cfg = ShieldConfig(enabled=True)
+    pos = np.array([[0.0, 0.0, 1.5]])
+    lo, hi = np.array([[0.05, -10.0, -1.0]]), np.array([[10.0, 10.0, 10.0]])  # 5 cm behind the x face
+    allowed, clearance = _blind_verdict(cfg, pos, fence_min_m=lo, fence_max_m=hi)
+    assert not allowed[0, HOVER]
+    assert allowed[0, FORWARD] and clearance[0, FORWARD] == pytest.approx(clearance[0].max())
+    assert clearance[0, FORWARD] < cfg.clearance_m  # its first samples are still outside
+    assert not any(allowed[0, a] for a, d in enumerate(DEFAULT_DIRECTIONS) if d[0] <= 0)
+
+
+def test_a_room_of_walls_keeps_the_clearance_and_a_geofence_the_margin():
+    cfg = ShieldConfig(enabled=True, clearance_m=0.5, fence_margin_m=0.1)
+    walls = cfg.with_room((-1.0, -1.0, 0.0), (3.0, 3.0, 3.0))
+    assert walls.fence_min_m == pytest.approx((-0.6, -0.6, 0.4))
+    assert walls.fence_max_m == pytest.approx((2.6, 2.6, 2.6))
+    both = walls.with_fence((-0.5, -2.0, -1.0), (2.8, 2.0, 2.8))  # intersected
+    assert both.fence_min_m == pytest.approx((-0.5, -0.6, 0.4))
+    assert both.fence_max_m == pytest.approx((2.6, 2.0, 2.6))
+    assert cfg.with_fence(None, None) is cfg
+
+
+@pytest.mark.parametrize(
+    ("kw", "needle"),
+    [
+        ({"fence_min_m": (0.0, 0.0, 0.0)}, "both"),
+        ({"fence_min_m": (0.0, 0.0, 0.0), "fence_max_m": (1.0, 0.0, 1.0)}, "below"),
+        ({"fence_margin_m": 0.5}, "fence_margin_m"),
+    ],
+)
+def test_a_bad_fence_is_refused(kw: dict, needle: str) -> None:
+    with pytest.raises(ValueError, match=needle):
+        ShieldConfig(enabled=True, **kw)
+
+
+def test_a_fence_in_a_config_file_is_range_checked():
+    from quadnav_onboard.config import ConfigError, parse_config
+
+    with pytest.raises(ConfigError, match="fence_max_m"):
+        parse_config(ShieldConfig, {"fence_min_m": [0, 0, 0], "fence_max_m": [1, 1, math.nan]}, source="x")
+    ok = parse_config(ShieldConfig, {"fence_min_m": [0, 0, 0], "fence_max_m": [1, 1, 1]}, source="x")
+    assert ok.fence_max_m == (1.0, 1.0, 1.0)

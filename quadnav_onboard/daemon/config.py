@@ -13,6 +13,7 @@ leaves room for (:func:`check_mission_path`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -37,7 +38,10 @@ __all__ = [
     "VehicleConfig",
     "check_mission_path",
     "default_sim_config",
+    "dry_run_config",
+    "flies_hardware",
     "load_flight_config",
+    "room_aware_shield",
 ]
 
 CoordM = Annotated[float, pydantic.Field(ge=-10_000, le=10_000)]
@@ -353,3 +357,45 @@ def default_sim_config() -> FlightConfig:
     ref = resources.files("quadnav_onboard").joinpath("defaults/sim.yaml")
     with resources.as_file(ref) as p:
         return load_flight_config(p, require_waypoints=False)
+
+
+def flies_hardware(cfg: FlightConfig) -> bool:
+    """The config names real hardware: a UVC depth camera or a serial link to the autopilot
+    (config/flight.yaml), not a sim or a SITL (config/sim.yaml, config/px4-sitl.yaml)."""
+    return cfg.depth.kind == "uvc" or cfg.vehicle.url.startswith("serial:")
+
+
+def dry_run_config(cfg: FlightConfig) -> FlightConfig:
+    """What a dry run flies of ``cfg``: the same mission, primitives, filter, preprocessing, reward
+    and safety limits; for a config that :func:`flies_hardware`, the hardware sections are the
+    sim's (defaults/sim.yaml): ``vehicle``, ``depth`` (the sim camera, rendered with the D435-like
+    noise model), ``odometry``, ``trigger`` (the sim's go) and ``record.directory`` (``records``;
+    ``--record-dir`` still overrides). Any other config is flown as it is (the dry run wires its
+    vehicle, camera and mocap to the sim in any case)."""
+    if not flies_hardware(cfg):
+        return cfg
+    sim = default_sim_config()
+    return dataclasses.replace(
+        cfg,
+        vehicle=sim.vehicle,
+        depth=sim.depth,
+        odometry=sim.odometry,
+        trigger=sim.trigger,
+        record=dataclasses.replace(cfg.record, directory=sim.record.directory),
+    )
+
+
+def room_aware_shield(
+    cfg: FlightConfig, meta: dict[str, Any], room: tuple[Any, Any] | None = None
+) -> ShieldConfig:
+    """The filter a flight flies with (``cfg.shield``, else the checkpoint's ``meta``) knowing the
+    room: the geofence as the box the vehicle's centre stays in
+    (:meth:`~quadnav_onboard.shield.ShieldConfig.with_fence`) and, in a dry run, the world's walls
+    ``room`` (lowest and highest corner inside them, m) as solid faces
+    (:meth:`~quadnav_onboard.shield.ShieldConfig.with_room`)."""
+    from quadnav_onboard.shield import shield_config_from_meta
+
+    shield = cfg.shield if cfg.shield is not None else shield_config_from_meta(meta)
+    if room is not None:
+        shield = shield.with_room(*room)
+    return shield.with_fence(cfg.safety.geofence_min_m, cfg.safety.geofence_max_m)

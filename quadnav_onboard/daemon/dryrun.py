@@ -43,11 +43,14 @@ class _SimWiring:
         mocap: dict[str, Any] | None = None,
         seed: int = 0,
         sitl: dict[str, Any] | None = None,
+        depth_noise: bool = False,
     ) -> None:
-        from sim_harness.world import load_world, paper_world_path
+        from sim_harness.world import load_world, paper_world_path, resolve_world_arg
 
-        self.world_path = Path(world_path) if world_path is not None else paper_world_path(1)
+        self.world_path = paper_world_path(1) if world_path is None else resolve_world_arg(str(world_path))
         self.world = load_world(self.world_path)
+        self.depth_noise = depth_noise
+        """Render the sim camera's frames with the D435-like noise model (sim_harness.noise)."""
         self.cfg = cfg
         self._emulator_kwargs = emulator or {}
         self._mocap_kwargs = mocap or {}
@@ -69,7 +72,8 @@ class ProcessDryRun(_SimWiring):
 
     ``emulator``: keyword arguments for :class:`sim_harness.px4.EmulatorConfig`; ``mocap``:
     settings of the emulated Motive (``rate_hz``, ``noise_m``, ``latency_s``, ``dropout``, ...).
-    ``world_path`` None = the paper's Env 1. ``side`` is the running
+    ``world_path`` None = the paper's Env 1 (a file, or a name in sim_harness/worlds/: ``lab02``).
+``depth_noise``: the sim camera renders with the D435-like noise model. ``side`` is the running
     :class:`~sim_harness.vehicle_side.VehicleSide` (its parts can be killed to inject faults).
     """
 
@@ -114,7 +118,8 @@ class ProcessDryRun(_SimWiring):
         head = "vehicle" if self.sitl is None else "bridge"  # a PX4 SITL: its reported state
         return VehicleSide(
             self.world_path,
-            camera={"width": d.width, "height": d.height, "fps": d.fps, "seed": self.seed},
+            camera={"width": d.width, "height": d.height, "fps": d.fps, "seed": self.seed,
+                    "noise": self.depth_noise},
             mocap={"rigid_body": cfg.odometry.rigid_body, "seed": self.seed, **self._mocap_kwargs},
             emulator=self._emulator_kwargs,
             parts=(head, "camera", "mocap") if mocap else (head, "camera"),
@@ -186,6 +191,7 @@ class DryRun(_SimWiring):
         """Keyword arguments for FlightDaemon: path, depth, odometry, vehicle, crash_probe."""
         from sim_harness.camera import SimDepthCamera
         from sim_harness.mocap import SimMocap
+        from sim_harness.noise import DepthNoise
         from sim_harness.render import CameraModel
 
         emu, d = self.emulator, self.cfg.depth
@@ -197,6 +203,7 @@ class DryRun(_SimWiring):
                 _CameraPose(emu.true_pose, self.world.floor_z_m),
                 camera=camera,
                 fps=d.fps,
+                noise=DepthNoise() if self.depth_noise else None,
                 seed=self.seed,
             ),
             "odometry": SimMocap(emu.true_pose, seed=self.seed, **self._mocap_kwargs),

@@ -165,8 +165,7 @@ def flight_eval_setup(
     trained = parse_config(PrimitiveConfig, policy.checkpoint.primitives, source="checkpoint.primitives")
     prims = flight.primitives or trained
     shield = flight.shield if flight.shield is not None else shield_config_from_meta(policy.checkpoint.meta)
-    if flight.shield is None:
-        shield = shield_at_scale(shield, trained.scale_m, prims.scale_m)
+    shield = shield_at_scale(shield, trained.scale_m, prims.scale_m)  # as the flight's decider does
     base = env_config_for_policy(
         policy,
         max_steps=m.max_steps,
