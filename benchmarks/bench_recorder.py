@@ -41,6 +41,9 @@ from quadnav_onboard.record.synthetic import _depth_frame
 
 DRAWS_PRIMITIVES = "primitive" in inspect.signature(FlightRecorder.step).parameters
 """This version of the recorder takes the step's primitive (and the camera)."""
+TAKES_STEP_RECORD = hasattr(FlightRecorder, "step_record")
+"""This version records the core's typed StepRecord (``FlightRecorder.step_record``), as the daemon
+calls it; older ones take the step's fields as keywords (``FlightRecorder.step``)."""
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,31 @@ def _decision(step: int, t_rel: float, q: np.ndarray) -> dict[str, Any]:
         d["primitive"] = Commanded(PRIMS, np.array([t_rel, 0.0, 2.0]), np.array([1.0, 0.0, 0.0]), 0.0)
     return d
 
+def _step_record(step: int, t_rel: float, q: np.ndarray) -> Any:
+    """One step as the core's StepRecord (N = 1), with the same values as :func:`_decision`."""
+    from quadnav_onboard.step import StepRecord
+
+    one = lambda v, dtype=np.float64: np.array([v], dtype=dtype)  # noqa: E731
+    return StepRecord(
+        step=one(step, np.int64), action=one(4, np.int64), q_values=q[None, :].copy(),
+        rel_pos_body_m=one([1.0, 0.0, 0.0]), moving_setpoint_world_m=one([t_rel, 0.0, 2.0]),
+        pos_world_m=one([t_rel, 0.0, 2.0]), yaw_rad=one(0.0), end_pos_world_m=one([t_rel + 1.0, 0.0, 2.0]),
+        d_prev_m=one(1.0), d_now_m=one(1.0), progress_m=one(t_rel), deviation_m=one(0.1),
+        deviated=one(False, np.bool_), collided=one(False, np.bool_), reward=one(0.5),
+        outcome=one(0, np.int8), shield_allowed=(np.arange(18) % 4 != 0)[None, :],
+        shield_clearance_m=np.linspace(0.2, 1.5, 18)[None, :],
+    )
+
+
+def _call_step(recorder: Any, t: float, step: int, decision: dict[str, Any], record: Any) -> None:
+    """Record one step the way this version's daemon does."""
+    if TAKES_STEP_RECORD:
+        prim = decision.get("primitive")
+        recorder.step_record(t, record, latency_ms=decision["latency_ms"], primitive=prim)
+    else:
+        recorder.step(t, **decision)
+
+
 RATES_HZ = {"depth": 30.0, "odometry": 120.0, "setpoint": 50.0, "vehicle": 10.0, "step": 1.0}
 
 
@@ -107,6 +135,7 @@ def run(
     t_start = time.monotonic() + 0.05
     step = 0
     decision = _decision(step, 0.0, q)  # built outside the timed call, as the daemon does
+    record = _step_record(step, 0.0, q) if TAKES_STEP_RECORD else None
     for t_rel, kind in _schedule(seconds):
         target = t_start + t_rel
         while (now := time.monotonic()) < target:
@@ -124,11 +153,12 @@ def run(
             recorder.vehicle(t, True, "OFFBOARD", {"local_position_ok": True})
         else:
             recorder.network_input(t, step, inp)
-            recorder.step(t, **decision)
+            _call_step(recorder, t, step, decision, record)
         call_us[kind].append((time.perf_counter() - c0) * 1e6)
         if kind == "step":
             step += 1
             decision = _decision(step, t_rel + 1.0, q)
+            record = _step_record(step, t_rel + 1.0, q) if TAKES_STEP_RECORD else None
 
     def stats(v: list[float]) -> dict[str, float]:
         a = np.asarray(v)
@@ -172,8 +202,8 @@ def writer_cost(depth_kind: str, n_depth: int = 200, n_steps: int = 1000) -> dic
                 (kind, 1.0 + i * 0.01, depth if kind == "depth" else _decision(i, float(i), q))
                 for i in range(n)
             ]
-            if kind == "step":  # the recorder's own copy of the arguments, as the writer receives it
-                items = [(k, t, _as_queued(d, drawn)) for k, t, d in items]
+            if kind == "step":  # what the recorder queues, as the writer receives it
+                items = [(k, t, _as_queued(d, drawn, i, q)) for i, (k, t, d) in enumerate(items)]
             c0 = time.process_time()
             for item in items:
                 sink.write(*item)
@@ -184,13 +214,17 @@ def writer_cost(depth_kind: str, n_depth: int = 200, n_steps: int = 1000) -> dic
     return out
 
 
-def _as_queued(d: dict[str, Any], drawn: bool = True) -> dict[str, Any]:
-    """The step dict the recorder queues (its primitive reduced to start, velocity and heading)."""
-    q = dict(d)
-    prim = q.pop("primitive", None) if drawn else None
+def _as_queued(d: dict[str, Any], drawn: bool, step: int, q_values: np.ndarray) -> Any:
+    """The step the recorder queues: (StepRecord, latency, primitive) or, in older versions, the
+    keyword dict; the primitive reduced to start, velocity and heading."""
+    out = dict(d)
+    prim = out.pop("primitive", None) if drawn else None
+    reduced = (prim.start_world_m, prim.start_vel_world_m_s, prim.yaw_rad) if prim else None
+    if TAKES_STEP_RECORD:
+        return (_step_record(step, float(step), q_values), d["latency_ms"], reduced)
     if DRAWS_PRIMITIVES:
-        q["primitive"] = (prim.start_world_m, prim.start_vel_world_m_s, prim.yaw_rad) if prim else None
-    return q
+        out["primitive"] = reduced
+    return out
 
 
 def main() -> int:
@@ -205,7 +239,18 @@ def main() -> int:
         help="the recorder's writer (default: the daemon's)",
     )
     p.add_argument("--depth", choices=("random", "scene"), default="random", help="depth frames replayed")
+    p.add_argument(
+        "--writer-cost-only", action="store_true", help="measure only the writer's cost per item (no replay)"
+    )
     args = p.parse_args()
+    if args.writer_cost_only:
+        cost = writer_cost(args.depth)
+        for kind, c in cost.items():
+            print(f"writer, per {kind}: {c['cpu_us']:.0f} µs CPU, {c['bytes'] / 1e3:.1f} kB written")
+        if args.out:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps({"depth": args.depth, "writer_cost": cost}, indent=2))
+        return 0
     results: dict[str, Any] = {
         "seconds": args.seconds,
         "rates_hz": RATES_HZ,
@@ -213,6 +258,7 @@ def main() -> int:
         "writer": args.writer,
         "depth": args.depth,
         "draws_primitives": DRAWS_PRIMITIVES,
+        "takes_step_record": TAKES_STEP_RECORD,
     }
     c0 = time.process_time()
     results["null"] = run(NullRecorder(), args.seconds, depth_kind=args.depth)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
@@ -11,7 +12,7 @@ from mcap.writer import Writer
 
 from quadnav_onboard.record import FlightRecorder, NullRecorder, RecorderError, RecordError, read_record
 from quadnav_onboard.record.recorder import RecordExistsError, record_name
-from quadnav_onboard.record.schemas import JSON_SCHEMAS, PROTOBUF_SCHEMAS, TOPICS
+from quadnav_onboard.record.schemas import JSON_SCHEMAS, PROTOBUF_SCHEMAS, QUADNAV_PROTOBUF, TOPICS
 
 
 def _fill(rec: FlightRecorder, n: int = 10, t0: float = 50.0) -> None:
@@ -60,7 +61,9 @@ def test_everything_recorded_comes_back(tmp_path, writer):
     np.testing.assert_allclose(r.step_array("q_values")[4], np.linspace(0, 1, 18) + 4)
     np.testing.assert_allclose(r.step_array("pos_world_m")[3], [3, 0.5, 2])
     np.testing.assert_allclose(r.step_array("latency_ms"), 20.0 + np.arange(10))
-    assert r.steps[2]["reward_terms"] == {"d_now_m": 1.1, "collided": False}
+    # the reward terms given land in the step record's own fields; the one not given is NaN
+    assert r.steps[2]["d_now_m"] == 1.1 and r.steps[2]["collided"] is False
+    assert math.isnan(r.steps[2]["d_prev_m"])
     np.testing.assert_allclose(r.step_t_s, 50.0 + np.arange(10))
     np.testing.assert_allclose(r.odom_pos_world_m[:, 0], np.arange(10))
     np.testing.assert_allclose(r.setpoint_yaw_rad, 0.1 * np.arange(10))
@@ -95,8 +98,9 @@ def test_record_is_a_standard_mcap_with_foxglove_schemas(tmp_path, writer):
     assert topics == TOPICS
     assert topics["/camera/depth"] == "foxglove.RawImage" and topics["/events"] == "foxglove.Log"
     for topic, name in topics.items():
-        want = ("protobuf", "protobuf") if name in PROTOBUF_SCHEMAS else ("json", "jsonschema")
-        assert name in PROTOBUF_SCHEMAS or name in JSON_SCHEMAS
+        protobuf = name in PROTOBUF_SCHEMAS or name in QUADNAV_PROTOBUF
+        want = ("protobuf", "protobuf") if protobuf else ("json", "jsonschema")
+        assert protobuf or name in JSON_SCHEMAS
         assert encodings[topic] == want, topic
     assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
     assert n == summary.statistics.message_count > 0
@@ -272,7 +276,7 @@ def test_calls_from_several_threads_are_all_recorded(tmp_path, writer):
 
 def test_the_shields_verdict_is_recorded_with_its_step_and_absent_without_it(tmp_path):
     """A step flown with the depth safety filter carries which primitives it allowed and their
-    clearances; a step without it has neither key."""
+    clearances; a step without it has neither (None)."""
     path = tmp_path / "f.mcap"
     allowed = np.arange(18) % 3 != 0
     clearance = np.linspace(0.1, 1.5, 18)
@@ -287,4 +291,4 @@ def test_the_shields_verdict_is_recorded_with_its_step_and_absent_without_it(tmp
     steps = read_record(path).steps
     assert steps[0]["shield_allowed"] == allowed.tolist()
     np.testing.assert_allclose(steps[0]["shield_clearance_m"], clearance)
-    assert "shield_allowed" not in steps[1] and "shield_clearance_m" not in steps[1]
+    assert steps[1]["shield_allowed"] is None and steps[1]["shield_clearance_m"] is None

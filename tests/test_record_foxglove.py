@@ -21,7 +21,13 @@ from quadnav_onboard.daemon.testing import constant_action_checkpoint
 from quadnav_onboard.record import FlightRecorder, NullRecorder, read_record
 from quadnav_onboard.record.decode import DecoderFactory, ProtobufSchema
 from quadnav_onboard.record.flight import record_px4_time
-from quadnav_onboard.record.schemas import CAMERA_FRAME, JSON_SCHEMAS, PROTOBUF_SCHEMAS, TOPICS
+from quadnav_onboard.record.schemas import (
+    CAMERA_FRAME,
+    JSON_SCHEMAS,
+    PROTOBUF_SCHEMAS,
+    QUADNAV_PROTOBUF,
+    TOPICS,
+)
 from quadnav_onboard.review.cli import main as review_main
 from quadnav_onboard.vehicle import MavsdkVehicle
 
@@ -80,7 +86,7 @@ def test_every_channel_of_a_dry_run_decodes_with_its_schema(dry_run_record):
         for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             assert schema.name == TOPICS[channel.topic]
             counts[channel.topic] += 1
-            if schema.name in PROTOBUF_SCHEMAS:
+            if schema.name in PROTOBUF_SCHEMAS or schema.name in QUADNAV_PROTOBUF:
                 strict = ProtobufSchema(schema.data).decode(schema.name, message.data, strict=True)
                 assert strict == decoded
             else:

@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 
 from quadnav_onboard.record import FlightRecorder, RecordError, read_record
 from quadnav_onboard.record.decode import ProtobufSchema
-from quadnav_onboard.record.schemas import JSON_SCHEMAS, PROTOBUF_SCHEMAS, TOPICS
+from quadnav_onboard.record.schemas import JSON_SCHEMAS, PROTOBUF_SCHEMAS, QUADNAV_PROTOBUF, TOPICS
 
 _DATA: dict[str, bytes] = {}
 
@@ -81,7 +81,7 @@ def test_every_message_fits_its_foxglove_or_quadnav_schema(tmp_path_factory, tmp
         for schema, channel, message in make_reader(f).iter_messages():
             assert schema.name == TOPICS[channel.topic]
             seen.add(channel.topic)
-            if schema.name in PROTOBUF_SCHEMAS:
+            if schema.name in PROTOBUF_SCHEMAS or schema.name in QUADNAV_PROTOBUF:
                 assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
                 msg = ProtobufSchema(schema.data).decode(schema.name, message.data, strict=True)
             else:

@@ -164,6 +164,11 @@ class ProtobufSchema:
                 type_name = bytes(v).decode().lstrip(".")
         return number, _Field(name, ftype, label == _LABEL_REPEATED, type_name)
 
+    @property
+    def numbers(self) -> dict[str, dict[str, int]]:
+        """Field numbers by message type and field name (``numbers["foxglove.Point3"]["x"]``)."""
+        return {t: {f.name: n for n, f in spec.items()} for t, spec in self.messages.items()}
+
     def decode(self, type_name: str, data: bytes, *, strict: bool = False) -> dict[str, Any]:
         """Decode ``data`` as message ``type_name`` (e.g. ``foxglove.RawImage``). Fields the schema
         does not declare are skipped, as protobuf does, or with ``strict`` are an error."""

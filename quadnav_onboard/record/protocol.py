@@ -31,6 +31,9 @@ class Recorder(Protocol):
         self, t_mono_s: float, pos_world_m: ArrayLike, vel_world_m_s: ArrayLike, yaw_rad: float
     ) -> None: ...
     def step(self, t_mono_s: float, **decision: Any) -> None: ...
+    def step_record(
+        self, t_mono_s: float, record: Any, *, latency_ms: float = ..., primitive: Any = None
+    ) -> None: ...
     def camera(self, t_mono_s: float, **model: Any) -> None: ...
     def geofence(self, t_mono_s: float, min_m: ArrayLike, max_m: ArrayLike) -> None: ...
     def world(self, t_mono_s: float, world: Mapping[str, Any]) -> None: ...
@@ -76,6 +79,11 @@ class NullRecorder:
         return None
 
     def step(self, t_mono_s: float, **decision: Any) -> None:
+        return None
+
+    def step_record(
+        self, t_mono_s: float, record: Any, *, latency_ms: float = float("nan"), primitive: Any = None
+    ) -> None:
         return None
 
     def vehicle(self, t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> None:

@@ -6,9 +6,12 @@ to the last complete, CRC-valid chunk and marked ``complete=False`` with the rea
 is not a quadnav flight record raises :class:`RecordError` with a one-line message naming the
 file.
 
-Both formats are read: version 2 (Foxglove's well-known schemas, protobuf, wall-clock log times;
-decoded by their own schemas, :mod:`decode`) and version 1 (JSON messages, monotonic log times).
-Either way the record's times come back as monotonic seconds of the recording process.
+Every format is read: version 3 (Foxglove's well-known schemas, protobuf, wall-clock log times,
+the step record ``quadnav.Step`` in protobuf with :class:`~quadnav_onboard.step.StepRecord`'s
+fields), version 2 (the same with ``quadnav.Step`` in JSON, its reward terms in ``reward_terms``),
+each message decoded by its own schema (:mod:`decode`), and version 1 (JSON messages, monotonic
+log times). Either way the record's times come back as monotonic seconds of the recording
+process, and :meth:`FlightRecord.step_record` gives the steps as one ``StepRecord``.
 """
 
 from __future__ import annotations
@@ -31,12 +34,14 @@ from mcap.stream_reader import StreamReader
 from numpy.typing import NDArray
 
 from quadnav_onboard.record import schemas as S
+from quadnav_onboard.record import step_msg
 from quadnav_onboard.record.decode import DecodeError, decoder_for
+from quadnav_onboard.step import StepRecord
 
 __all__ = ["FlightRecord", "RecordError", "read_record"]
 
 _MAGIC = b"\x89MCAP0\r\n"
-_READABLE_VERSIONS = ("1", str(S.FORMAT_VERSION))
+_READABLE_VERSIONS = tuple(str(v) for v in range(1, S.FORMAT_VERSION + 1))
 _READ = {
     "/planner/step", "/odometry", "/setpoint", "/planner/input", "/camera/depth", "/vehicle",
     "/vehicle/px4_time", "/events", "/planner/path", "/flight/stop",
@@ -70,7 +75,8 @@ class FlightRecord:
     """Why the record is incomplete (e.g. cut off inside a chunk), else None."""
     message_counts: dict[str, int] = field(default_factory=dict)
     steps: list[dict[str, Any]] = field(default_factory=list)
-    """quadnav.Step messages in step order, each with ``t_mono_s`` added."""
+    """quadnav.Step messages in step order, each with ``t_mono_s``; the filter's verdicts
+    (``shield_allowed``, ``shield_clearance_m``) None or absent when it was off."""
     odom_t_s: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     odom_pos_world_m: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     odom_quat_world_body: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 4)))
@@ -118,6 +124,43 @@ class FlightRecord:
     @property
     def step_t_s(self) -> NDArray[np.float64]:
         return np.array([s["t_mono_s"] for s in self.steps], dtype=np.float64)
+
+    def step_record(self) -> StepRecord:
+        """Every recorded step as one :class:`~quadnav_onboard.step.StepRecord` (N = steps, in
+        step order). A field a record's format did not hold (version 1 and 2: the end position,
+        the outcome, ...) is NaN, False or 0; ``d_prev_m``, ``d_now_m``, ``deviated`` and
+        ``collided`` come from version 2's ``reward_terms`` where it gave them; the filter's
+        verdicts are None unless every step has them."""
+        cols: dict[str, Any] = {}
+        for f in step_msg.FIELDS[1:-1]:
+            vals = [_step_value(s, f.name) for s in self.steps]
+            if f.optional and (not vals or any(v is None or len(v) == 0 for v in vals)):
+                cols[f.name] = None
+                continue
+            dtype = {"f": np.float64, "i": np.int64, "b": np.bool_}[f.kind]
+            if f.name == "outcome":
+                dtype = np.int8
+            fill = {"f": math.nan, "i": 0, "b": False}[f.kind]
+            rows = [fill if v is None else v for v in vals]
+            if f.repeated:
+                width = max((len(r) for r in rows if isinstance(r, list)), default=0)
+                rows = [r if isinstance(r, list) else [fill] * width for r in rows]
+                cols[f.name] = np.array(rows, dtype=np.float64).reshape(len(rows), width).astype(dtype)
+            else:
+                cols[f.name] = np.array(rows, dtype=np.float64).astype(dtype)
+        return StepRecord(**cols)
+
+
+def _step_value(s: dict[str, Any], name: str) -> Any:
+    """A step message's value of StepRecord field ``name`` (lists for vectors; None: not held)."""
+    v = s.get(name)
+    if v is None:
+        v = (s.get("reward_terms") or {}).get(name)
+    if isinstance(v, dict):
+        return _vec(v)
+    if isinstance(v, list):
+        return [_num(x) if not isinstance(x, bool) else x for x in v]
+    return v
 
 
 def _opname(opcode: int) -> str:
@@ -318,6 +361,10 @@ def _dispatch(
         log_time_ns = int(stamp["seconds"]) * 1_000_000_000 + int(stamp["nanos"])
     t = (log_time_ns - rec.unix_minus_mono_ns) / 1e9
     if topic == "/planner/step":
+        if rec.format_version >= 3:  # protobuf: a field left out (the filter off) reads as []
+            for key in ("shield_allowed", "shield_clearance_m"):
+                if not msg.get(key):
+                    msg[key] = None
         rec.steps.append(msg)
     elif topic == "/odometry":
         pose = msg["pose"] or {}

@@ -39,6 +39,7 @@ import collections
 import contextlib
 import itertools
 import json
+import math
 import os
 import pickle
 import subprocess
@@ -57,6 +58,7 @@ from quadnav_onboard.logs import get_logger
 from quadnav_onboard.record.protocol import NullRecorder, Recorder
 from quadnav_onboard.record.schemas import to_jsonable
 from quadnav_onboard.record.sink import Item, McapSink
+from quadnav_onboard.step import StepRecord
 
 __all__ = [  # NullRecorder, Recorder and RecorderError are re-exported by quadnav_onboard.record
     "FlightRecorder",
@@ -318,21 +320,12 @@ class FlightRecorder:
         shield_clearance_m: ArrayLike | None = None,
         primitive: Any = None,
     ) -> None:
-        """One planner decision (see :data:`schemas.JSON_SCHEMAS` ``quadnav.Step`` for units and
-        frames). ``primitive``: the commanded primitive (an
-        :class:`~quadnav_onboard.daemon.mission.ActivePrimitive`: its primitive set, commanded
-        start, start velocity and heading), drawn with every other primitive of its set and the
-        filter's verdict on ``/planner/primitives``; None draws nothing."""
-        drawn = None
-        if primitive is not None:
-            prims = primitive.primitives
-            if prims is not self._prims_sent and self._put("primitive_set", t_mono_s, prims):
-                self._prims_sent = prims  # sent once; again only if it changes (or was dropped)
-            drawn = (
-                np.array(primitive.start_world_m, dtype=np.float64),
-                np.array(primitive.start_vel_world_m_s, dtype=np.float64),
-                float(primitive.yaw_rad),
-            )
+        """One planner decision given field by field (units and frames as
+        :class:`~quadnav_onboard.step.StepRecord`'s; ``reward_terms`` may give ``d_prev_m``,
+        ``d_now_m``, ``deviated`` and ``collided``; the fields it cannot give are recorded as NaN,
+        False or 0). :meth:`step_record` records the core's typed record itself. ``primitive``: as
+        for :meth:`step_record`."""
+        drawn = self._drawn(t_mono_s, primitive)
         decision = {
             "step": int(step),
             "action": int(action),
@@ -350,6 +343,39 @@ class FlightRecorder:
             "primitive": drawn,
         }
         self._put("step", t_mono_s, decision)
+
+    def step_record(
+        self, t_mono_s: float, record: StepRecord, *, latency_ms: float = math.nan, primitive: Any = None
+    ) -> None:
+        """One executed planner step: the core's typed record (N = 1) as ``/planner/step``
+        (``quadnav.Step``, its fields; :mod:`step_msg`), decided at ``t_mono_s``, with
+        ``latency_ms`` (depth capture to setpoint sent, ms). The record is handed to the writer as
+        it is, not copied: its arrays must not be written into afterwards (:func:`~quadnav_onboard.
+        step.finish_step` makes new ones for every step). ``primitive``: the commanded primitive
+        (an :class:`~quadnav_onboard.daemon.mission.ActivePrimitive`: its primitive set, commanded
+        start, start velocity and heading), drawn with every other primitive of its set and the
+        filter's verdict on ``/planner/primitives``; None draws nothing."""
+        if not isinstance(record, StepRecord) or record.n != 1:
+            with self._cond:
+                self._drops["invalid"] += 1
+                self._local_invalid += 1
+            why = f"not a one-vehicle StepRecord: {type(record).__name__}"
+            _log.error("recorder_invalid_message", kind="step", error=why)
+            return
+        self._put("step", t_mono_s, (record, float(latency_ms), self._drawn(t_mono_s, primitive)))
+
+    def _drawn(self, t_mono_s: float, primitive: Any) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """What the writer needs to draw ``primitive`` (its set is sent the first time it is seen)."""
+        if primitive is None:
+            return None
+        prims = primitive.primitives
+        if prims is not self._prims_sent and self._put("primitive_set", t_mono_s, prims):
+            self._prims_sent = prims  # sent once; again only if it changes (or was dropped)
+        return (
+            np.array(primitive.start_world_m, dtype=np.float64),
+            np.array(primitive.start_vel_world_m_s, dtype=np.float64),
+            float(primitive.yaw_rad),
+        )
 
     def camera(
         self,

@@ -3,8 +3,10 @@
 A record is one MCAP file per flight. Where one of Foxglove's well-known schemas fits (images,
 camera calibration, transforms, poses, 3-D scenes, logs) the message is that schema, protobuf
 encoded by Foxglove's SDK (``foxglove.messages``), so Foxglove shows the record without
-plugins. Where none fits (the planner's step record, the vehicle state, the stop, PX4's clock)
-the message is JSON with a ``quadnav.*`` JSON schema (:data:`JSON_SCHEMAS`).
+plugins. Where none fits the message is quadnav's own: the planner's step record, ``quadnav.Step``,
+protobuf with a schema generated from the core's :class:`~quadnav_onboard.step.StepRecord`
+(:mod:`step_msg`); the vehicle state, the stop and PX4's clock, JSON with a ``quadnav.*`` JSON
+schema (:data:`JSON_SCHEMAS`).
 
 Frames (a FrameTransform tree): ``world`` (x forward, y left, z up, m) -> ``body`` (the odometry's
 pose, FLU) -> ``camera_depth_optical`` (the depth camera at its mount offset, optical axes: x
@@ -44,12 +46,15 @@ from foxglove.messages import (
 )
 from numpy.typing import ArrayLike
 
+from quadnav_onboard.record import step_msg
+
 __all__ = [
     "CAMERA_FRAME",
     "FORMAT",
     "FORMAT_VERSION",
     "JSON_SCHEMAS",
     "PROTOBUF_SCHEMAS",
+    "QUADNAV_PROTOBUF",
     "TOPICS",
     "encode_calibration",
     "encode_depth",
@@ -58,7 +63,6 @@ __all__ = [
     "encode_path",
     "encode_pose",
     "encode_px4_time",
-    "encode_step",
     "encode_stop",
     "encode_transform",
     "encode_vehicle",
@@ -69,8 +73,10 @@ __all__ = [
 
 FORMAT = "quadnav-flight-record"
 """Value of metadata ``recorder.format``: how :mod:`reader` tells our records from other MCAPs."""
-FORMAT_VERSION = 2
-"""Bumped on an incompatible change of a topic's content (1: JSON messages, monotonic log times)."""
+FORMAT_VERSION = 3
+"""Bumped on an incompatible change of a topic's content (1: JSON messages, monotonic log times;
+2: Foxglove's schemas, UTC log times, ``quadnav.Step`` in JSON; 3: ``quadnav.Step`` protobuf, the
+fields of :class:`~quadnav_onboard.step.StepRecord`, see :mod:`step_msg`)."""
 CAMERA_FRAME = "camera_depth_optical"
 """Frame of the depth image and its calibration."""
 
@@ -79,6 +85,9 @@ PROTOBUF_SCHEMAS: dict[str, Any] = {
     for cls in (RawImage, CameraCalibration, FrameTransform, PoseInFrame, PosesInFrame, SceneUpdate, Log)
 }
 """Foxglove well-known schema name -> the SDK's message class (protobuf)."""
+
+QUADNAV_PROTOBUF: dict[str, bytes] = {step_msg.SCHEMA_NAME: step_msg.descriptor_set()}
+"""quadnav's own protobuf schemas: name -> its ``FileDescriptorSet`` (generated, :mod:`step_msg`)."""
 
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 
@@ -89,33 +98,6 @@ def _obj(title: str, description: str, required: list[str], **props: Any) -> dic
 
 
 JSON_SCHEMAS: dict[str, dict[str, Any]] = {
-    "quadnav.Step": _obj(
-        "quadnav.Step",
-        "One planner decision: what it chose, from which Q-values, and how the step went",
-        ["t_mono_s", "step", "action", "q_values", "reward", "progress_m", "deviation_m"],
-        t_mono_s={"type": "number", "description": "decision time, time.monotonic() (s)"},
-        step={"type": "integer", "minimum": 0},
-        action={"type": "integer", "minimum": 0},
-        q_values={"type": "array", "items": {"type": ["number", "null"]}},
-        rel_pos_body_m={**_VEC3, "description": "setpoint - quad in the heading frame (m)"},
-        moving_setpoint_world_m=_VEC3,
-        pos_world_m=_VEC3,
-        reward={"type": ["number", "null"]},
-        reward_terms={"type": "object"},
-        progress_m={"type": ["number", "null"], "description": "arc length of the closest path point (m)"},
-        deviation_m={"type": ["number", "null"], "description": "distance to the rough path (m)"},
-        latency_ms={"type": ["number", "null"], "description": "depth capture to setpoint sent (ms)"},
-        shield_allowed={
-            "type": "array",
-            "items": {"type": "boolean"},
-            "description": "primitives the depth safety filter allowed (absent when it is off)",
-        },
-        shield_clearance_m={
-            "type": "array",
-            "items": {"type": ["number", "null"]},
-            "description": "the filter's clearance (m) of every primitive (absent when it is off)",
-        },
-    ),
     "quadnav.Vehicle": _obj(
         "quadnav.Vehicle",
         "Autopilot state: armed, flight mode and health flags",
@@ -156,7 +138,6 @@ TOPICS: dict[str, str] = {
     "/tf_static": "foxglove.FrameTransform",
     "/odometry": "foxglove.PoseInFrame",
     "/setpoint": "foxglove.PoseInFrame",
-    "/planner/moving_setpoint": "foxglove.PoseInFrame",
     "/planner/path": "foxglove.PosesInFrame",
     "/planner/step": "quadnav.Step",
     "/planner/primitives": "foxglove.SceneUpdate",
@@ -205,27 +186,6 @@ def _q(q_wxyz: ArrayLike) -> Quaternion:
 
 def _yaw_q(yaw_rad: float) -> Quaternion:
     return Quaternion(x=0.0, y=0.0, z=math.sin(yaw_rad / 2), w=math.cos(yaw_rad / 2))
-
-
-def _finite(values: Any) -> list[Any]:
-    """A float array as a list with NaN/inf as None (JSON has neither)."""
-    if isinstance(values, np.ndarray) and values.dtype == np.float64:
-        lst = values.ravel().tolist()
-    else:
-        lst = np.asarray(values, dtype=np.float64).ravel().tolist()
-    if all(map(math.isfinite, lst)):
-        return lst
-    return [v if math.isfinite(v) else None for v in lst]
-
-
-def _vec_json(v: ArrayLike) -> dict[str, Any]:
-    x, y, z = _finite(v)[:3]
-    return {"x": x, "y": y, "z": z}
-
-
-def _num(v: Any) -> float | None:
-    f = float(v)
-    return f if math.isfinite(f) else None
 
 
 def to_jsonable(value: Any) -> Any:
@@ -338,30 +298,6 @@ def encode_path(t_ns: int, waypoints_m: ArrayLike) -> bytes:
         raise ValueError(f"waypoints_m must have shape (K>=2, 3), got {wps.shape}")
     poses = [Pose(position=_v3(w), orientation=_yaw_q(0.0)) for w in wps]
     return PosesInFrame(timestamp=_stamp(t_ns), frame_id="world", poses=poses).encode()
-
-
-def encode_step(t_mono_s: float, d: Mapping[str, Any]) -> bytes:
-    """One planner decision (the recorder's step dict) as quadnav.Step JSON; the shield's verdict
-    only when it was on."""
-    msg: dict[str, Any] = {
-        "t_mono_s": float(t_mono_s),
-        "step": int(d["step"]),
-        "action": int(d["action"]),
-        "q_values": _finite(d["q_values"]),
-        "rel_pos_body_m": _vec_json(d["rel_pos_body_m"]),
-        "moving_setpoint_world_m": _vec_json(d["moving_setpoint_world_m"]),
-        "pos_world_m": _vec_json(d["pos_world_m"]),
-        "reward": _num(d["reward"]),
-        "reward_terms": to_jsonable(dict(d["reward_terms"])),
-        "progress_m": _num(d["progress_m"]),
-        "deviation_m": _num(d["deviation_m"]),
-        "latency_ms": _num(d["latency_ms"]),
-    }
-    if d.get("shield_allowed") is not None:
-        msg["shield_allowed"] = [bool(a) for a in np.asarray(d["shield_allowed"]).reshape(-1).tolist()]
-    if d.get("shield_clearance_m") is not None:
-        msg["shield_clearance_m"] = _finite(d["shield_clearance_m"])
-    return _json(msg)
 
 
 def encode_vehicle(t_mono_s: float, armed: bool, mode: str, health: Mapping[str, Any]) -> bytes:

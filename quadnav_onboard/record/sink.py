@@ -13,16 +13,19 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import struct
 from collections.abc import Callable, Mapping
 from typing import Any, BinaryIO
 
 import yaml
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from quadnav_onboard import __version__
 from quadnav_onboard.primitives import PrimitiveSet
-from quadnav_onboard.record import scene
+from quadnav_onboard.record import scene, step_msg
 from quadnav_onboard.record import schemas as S
 
 __all__ = ["Item", "McapSink"]
@@ -31,6 +34,56 @@ Item = tuple[str, float, Any]
 """One queued datum: (kind, t_mono_s, payload)."""
 
 _BODY_FROM_OPTICAL = S.optical_from_body_quat()
+
+
+_MESSAGE = int(Opcode.MESSAGE)
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+"""A Message record's opcode, length, channel id, sequence, log time and publish time."""
+
+
+def _fast_add(writer: Writer) -> Callable[[int, int, bytes, int, int], None] | None:
+    """``writer.add_message`` without its per-call objects: the Message record packed in one
+    struct, the same statistics, chunk index and chunk size check (tests compare the bytes with
+    the library's own). It reaches into the writer's private state, so it is used only when that
+    state is as in ``mcap`` 1.x; None otherwise (then the library's method is used)."""
+    try:
+        stats = writer._Writer__statistics  # type: ignore[attr-defined]
+        chunk = writer._Writer__chunk_builder  # type: ignore[attr-defined]
+        chunk_size = int(writer._Writer__chunk_size)  # type: ignore[attr-defined]
+        finalize = writer._Writer__finalize_chunk  # type: ignore[attr-defined]
+        _ = (stats.message_count, stats.channel_message_counts, chunk.message_indices, chunk.num_messages)
+        _ = chunk.record_writer._buffer
+    except AttributeError:
+        return None
+
+    def add(channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int) -> None:
+        if stats.message_count == 0 or log_time < stats.message_start_time:
+            stats.message_start_time = log_time
+        if log_time > stats.message_end_time:
+            stats.message_end_time = log_time
+        stats.channel_message_counts[channel_id] += 1
+        stats.message_count += 1
+        if chunk.num_messages == 0 or log_time < chunk.message_start_time:
+            chunk.message_start_time = log_time
+        if log_time > chunk.message_end_time:
+            chunk.message_end_time = log_time
+        index = chunk.message_indices.get(channel_id)
+        if not index:
+            index = chunk.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+        buf = chunk.record_writer._buffer
+        index.records.append((log_time, buf.tell()))
+        chunk.num_messages += 1
+        buf.write(_MESSAGE_HEAD.pack(_MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time))
+        buf.write(data)
+        if buf.tell() > chunk_size:
+            finalize()
+
+    return add
+
+
+def _one(v: Any) -> int:
+    """An int given as a number or a one-element array."""
+    return int(v.item() if hasattr(v, "item") else v)
 
 
 class McapSink:
@@ -62,17 +115,20 @@ class McapSink:
         self._last_ns: dict[str, int] = {}
         self._writer = Writer(file, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_crcs=True)
         self._writer.start(profile="", library=f"quadnav {__version__}")
+        self._add = _fast_add(self._writer) or self._writer_add
         schema_ids: dict[str, int] = {}
         for name, cls in S.PROTOBUF_SCHEMAS.items():
             sch = cls.get_schema()
             schema_ids[name] = self._writer.register_schema(name, sch.encoding, sch.data)
+        for name, data in S.QUADNAV_PROTOBUF.items():
+            schema_ids[name] = self._writer.register_schema(name, SchemaEncoding.Protobuf, data)
         for name, js in S.JSON_SCHEMAS.items():
             data = json.dumps(js).encode()
             schema_ids[name] = self._writer.register_schema(name, SchemaEncoding.JSONSchema, data)
         self._channels = {
             topic: self._writer.register_channel(
                 topic,
-                MessageEncoding.Protobuf if name in S.PROTOBUF_SCHEMAS else MessageEncoding.JSON,
+                MessageEncoding.JSON if name in S.JSON_SCHEMAS else MessageEncoding.Protobuf,
                 schema_ids[name],
             )
             for topic, name in S.TOPICS.items()
@@ -99,6 +155,10 @@ class McapSink:
         such as ``flush_interval_s``, are the writer's own)."""
         keys = ("metadata", "depth_decimation", "unix_minus_mono_s", "chunk_size", "fsync")
         return cls(file, **{k: options[k] for k in keys}, on_invalid=on_invalid)
+
+    def _writer_add(self, channel_id: int, log_time: int, data: bytes, publish_time: int, seq: int) -> None:
+        self._writer.add_message(channel_id, log_time=log_time, data=data, publish_time=publish_time,
+                                 sequence=seq)
 
     def wall_ns(self, t_mono_s: float) -> int:
         """The log time (wall clock, ns) of monotonic time ``t_mono_s``."""
@@ -146,20 +206,25 @@ class McapSink:
             return [("/vehicle/px4_time", S.encode_px4_time(t, self._offset_ns, *p))]
         raise ValueError(f"unknown message kind {kind!r}")
 
-    def _step(self, ns: int, t: float, d: Mapping[str, Any]) -> list[tuple[str, bytes]]:
-        out = [
-            ("/planner/step", S.encode_step(t, d)),
-            ("/planner/moving_setpoint", S.encode_pose(ns, d["moving_setpoint_world_m"])),
-        ]
-        prim = d.get("primitive")
+    def _step(self, ns: int, t: float, p: Any) -> list[tuple[str, bytes]]:
+        """A step: ``(StepRecord, latency_ms, primitive)`` from :meth:`FlightRecorder.step_record`,
+        or the keyword dict of :meth:`FlightRecorder.step`; ``primitive``: (commanded start,
+        start velocity, heading) or None."""
+        if isinstance(p, tuple):
+            record, latency_ms, prim = p
+            out = [("/planner/step", step_msg.encode_record(t, record, latency_ms))]
+            action, allowed, setpoint = record.action, record.shield_allowed, record.moving_setpoint_world_m
+        else:
+            row, prim = step_msg.row_of_kwargs(t, p), p.get("primitive")
+            out = [("/planner/step", step_msg.encode(row))]
+            action, allowed, setpoint = row["action"], row["shield_allowed"], row["moving_setpoint_world_m"]
         if prim is not None and self._prims is not None:
             start, vel, yaw = prim
             out.append((
                 "/planner/primitives",
                 scene.encode_primitives(
                     ns, self._prims, start_world_m=start, start_vel_world_m_s=vel, yaw_rad=yaw,
-                    action=d["action"], allowed=d.get("shield_allowed"),
-                    moving_setpoint_world_m=d["moving_setpoint_world_m"],
+                    action=_one(action), allowed=allowed, moving_setpoint_world_m=setpoint,
                 ),
             ))
         return out
@@ -192,9 +257,7 @@ class McapSink:
             # time stays in the message (``timestamp``, ``t_mono_s``)
             log_ns = max(t_ns, self._last_ns.get(topic, 0))
             self._last_ns[topic] = log_ns
-            self._writer.add_message(
-                self._channels[topic], log_time=log_ns, data=data, publish_time=t_ns, sequence=self._seq
-            )
+            self._add(self._channels[topic], log_ns, data, t_ns, self._seq)
             self._seq += 1
 
     def flush(self) -> None:

@@ -36,9 +36,6 @@ def _three_d() -> fl.ThreeDeePanel:
         **_visible("/scene/world", "/scene/mission", "/planner/primitives", "/planner/path"),
         "/odometry": fl.BaseRendererPoseTopicSettings(visible=False),
         "/setpoint": fl.BaseRendererPoseTopicSettings(visible=True, type="arrow", color="#f28e2bff"),
-        "/planner/moving_setpoint": fl.BaseRendererPoseTopicSettings(
-            visible=True, type="axis", axis_scale=0.5
-        ),
     }
     return fl.ThreeDeePanel(
         title="3-D: world, mission, primitives (green allowed, red vetoed, white chosen)",
