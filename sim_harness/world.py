@@ -500,7 +500,11 @@ def resolve_world_arg(arg: str) -> Path:
         return p
     if p.parent == Path(".") and not arg.lower().startswith("env"):
         stem = p.stem if p.suffix in (".yaml", ".yml") else p.name
-        shipped = sorted(WORLDS_DIR.glob(f"{stem}.yaml")) or sorted(WORLDS_DIR.glob(f"{stem}-*.yaml"))
+        shipped = (
+            sorted(WORLDS_DIR.glob(f"{stem}.yaml"))
+            or sorted(WORLDS_DIR.glob(f"{stem}-*.yaml"))
+            or sorted(WORLDS_DIR.glob(f"{stem}*.yaml"))
+        )
         if len(shipped) == 1:
             return shipped[0]
         if len(shipped) > 1:

@@ -1,0 +1,126 @@
+"""The paper's real-flight labs as worlds: rooms with walls, the flight config's mission flown in
+the eval with its geofence and altitude band as stop conditions, and the room known to the filter."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quadnav_onboard.daemon.config import dry_run_config, flies_hardware, load_flight_config
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+from quadnav_onboard.shield import ShieldConfig
+from sim_harness.collision import clearance_m
+from sim_harness.render import render_inputs
+from sim_harness.rl.evaluate import FlightLimits, evaluate, flight_eval_setup, known_room
+from sim_harness.world import WorldError, load_world, parse_world, resolve_world_arg, world_to_mapping
+
+REPO = Path(__file__).resolve().parents[1]
+FLIGHT = REPO / "config" / "flight.yaml"
+ROOM = {
+    "name": "room",
+    "path": {"waypoints": [[0, 0, 1.2], [2, 2, 1.2]]},
+    "bounds": {"floor_z": 0.0, "ceiling_z": 3.0},
+    "room": {"x": [-1.0, 3.0], "y": [-1.0, 3.0]},
+}
+
+
+def test_a_room_builds_solid_walls_that_the_camera_sees_and_the_vehicle_hits():
+    w = parse_world(ROOM, "t")
+    assert len(w.walls) == 4 and w.obstacles == ()
+    assert w.room_box_m() == ((-1.0, -1.0, 0.0), (3.0, 3.0, 3.0))
+    c = clearance_m(w, np.array([[2.5, 1.0, 1.2], [3.1, 1.0, 1.2], [1.0, 1.0, 1.2]]))
+    assert c[0] == pytest.approx(0.5) and c[1] < 0 and c[2] == pytest.approx(1.2)  # ceiling 1.8 m up
+    depth, _ = render_inputs(w, np.array([[1.0, 1.0, 1.2]]), np.zeros(1))  # facing the +x wall, 2 m
+    assert np.median(depth[0]) < 0.35  # everything within about 3 m of a 10 m range
+
+
+def test_a_room_round_trips_and_a_bad_room_names_the_file_and_the_key():
+    w = parse_world(ROOM, "t")
+    again = parse_world(world_to_mapping(w), "t2")
+    assert again.room_xy_m == w.room_xy_m and len(again.geometry.kind) == 4
+    for room, needle in (
+        ({"x": [0, 0.5], "y": [-1, 3]}, "room: 'x'"),
+        ({"x": [-1, 3]}, "missing required key 'y'"),
+        ({"x": [-1, 3], "y": [-1, float("nan")]}, "'y' must be a finite number"),
+        ({"x": [-1, 3], "y": [0.1, 3]}, "outside the room"),
+    ):
+        with pytest.raises(WorldError, match=needle):
+            parse_world({**ROOM, "room": room}, "lab.yaml")
+    with pytest.raises(WorldError, match="needs 'bounds'"):
+        parse_world({**ROOM, "bounds": {"floor_z": 0.0}}, "lab.yaml")
+
+
+def test_the_lab_worlds_are_the_papers_labs_and_fit_the_flight_config():
+    cfg = load_flight_config(FLIGHT)
+    lo, hi = np.asarray(cfg.safety.geofence_min_m), np.asarray(cfg.safety.geofence_max_m)
+    for name, n_obstacles in (("lab01", 0), ("lab02", 2)):
+        w = load_world(resolve_world_arg(f"{name}.yaml"))
+        assert len(w.obstacles) == n_obstacles and len(w.walls) == 4
+        assert w.path.length_m == pytest.approx(3.5, abs=0.01)  # the paper's 3.5 m, diagonal
+        np.testing.assert_allclose(w.path.waypoints_m, cfg.mission.waypoints_m)
+        room_lo, room_hi = w.room_box_m()
+        assert np.all(np.asarray(room_lo)[:2] < lo[:2]) and np.all(np.asarray(room_hi)[:2] > hi[:2])
+    assert resolve_world_arg("lab02") == resolve_world_arg("lab02-two-boxes.yaml")
+    with pytest.raises(WorldError, match="matches"):
+        resolve_world_arg("lab")
+
+
+def test_a_dry_run_replaces_only_the_hardware_sections_of_the_flight_config():
+    cfg = load_flight_config(FLIGHT)
+    assert flies_hardware(cfg)
+    dry = dry_run_config(cfg)
+    assert dry.depth.kind == "socket" and not dry.vehicle.url.startswith("serial")
+    assert dry.trigger != cfg.trigger and dry.record.directory == "records"
+    for section in ("mission", "primitives", "shield", "safety", "preprocess", "reward"):
+        assert getattr(dry, section) == getattr(cfg, section), section
+    sim = load_flight_config(REPO / "config" / "sim.yaml", require_waypoints=False)
+    assert not flies_hardware(sim) and dry_run_config(sim) is sim
+
+
+def test_the_geofence_and_the_altitude_band_stop_a_flight():
+    lim = FlightLimits((-1.0, -1.0, -0.5), (3.0, 3.0, 2.8), 0.4, 2.5)
+    out = lim.stop(np.array([[0, 0, 1.2], [3.2, 0, 1.2], [0, 0, 2.6], [0, 0, 0.2], [0, 0, 2.9]]))
+    assert out.tolist() == [None, "geofence", "altitude", "altitude", "geofence"]
+
+
+def test_known_room_is_the_walls_less_the_clearance_and_the_geofence():
+    w = parse_world(ROOM, "t")
+    sh = ShieldConfig(enabled=True)
+    lim = FlightLimits((-2.0, -0.5, -0.5), (5.0, 5.0, 2.8), 0.4, 2.5)
+    got = known_room(sh, w, lim)
+    inset = sh.clearance_m - sh.fence_margin_m
+    assert got.fence_min_m == pytest.approx((-1.0 + inset, -0.5, inset))
+    assert got.fence_max_m == pytest.approx((3.0 - inset, 3.0 - inset, 3.0 - inset))
+    paper = load_world(REPO / "sim_harness" / "worlds" / "env01-free.yaml")  # no walls: its ceiling
+    assert known_room(sh, paper).fence_max_m[2] == pytest.approx(8.0 - inset)
+
+
+@pytest.mark.slow
+def test_the_flight_config_flies_lab_env_1_to_the_goal_and_a_tight_geofence_stops_it():
+    """The shipped model under config/flight.yaml (0.5 m primitives, 0.5 m/s, 30 steps, noise on)
+    reaches the goal in the free lab; with the geofence's far side moved onto the path the flights
+    end on the geofence or short of it (safe, never a goal, never a crash)."""
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    flight = load_flight_config(FLIGHT)
+    world = load_world(resolve_world_arg("lab01"))
+    env_cfg, worlds, limits = flight_eval_setup(policy, flight, [world])
+    assert env_cfg.primitives.scale_m == 0.5 and env_cfg.max_steps == 30
+    assert worlds[0].path.speed_m_s == 0.5 and env_cfg.start_jitter_m == flight.mission.start_tolerance_m
+    from quadnav_onboard.policy import masked_argmax
+    from sim_harness.noise import DepthNoise
+
+    def act(d, r, a):
+        return masked_argmax(policy.q_values_batch(d, r), a)
+
+    rows = evaluate(act, worlds, 4, 0, env_cfg, limits=limits, depth_noise=DepthNoise())
+    assert [r.outcome for r in rows] == ["goal"] * 4
+    assert all(r.time_s <= 1.3 * 22 for r in rows)
+    tight = FlightLimits(
+        limits.geofence_min_m, (1.5, 1.5, 2.8), limits.altitude_floor_m, limits.altitude_ceiling_m
+    )
+    rows = evaluate(act, worlds, 4, 0, env_cfg, limits=tight, known_rooms=False)
+    assert all(r.outcome == "geofence" for r in rows)
+    rows = evaluate(act, worlds, 4, 0, env_cfg, limits=tight)  # the filter knows it: no crossing
+    assert all(r.outcome in ("timeout", "deviation") and not r.crash for r in rows)
