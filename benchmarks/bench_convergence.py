@@ -6,7 +6,7 @@
 
 Each run is ``quadnav-sim train`` in-process with the defaults of TrainConfig (the paper's recipe)
 and ``--episodes B``: the ε decay 1.0 -> 0.1 and the γ gain 0.01 -> 0.99 ramp over the first 80 %
-of the B episodes (``schedule_fraction``), as in each of the paper's five sessions. The figure
+of the B episodes (``schedule_fraction``), as in each of the paper's five training runs. The figure
 has one panel per budget (the running mean of the episode reward over ``window`` episodes: the
 mean over the seeds, and the band from the lowest to the highest seed), and a sixth panel with
 each budget's final average reward (the mean reward of the last 20 % of its episodes, the flat
@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 BUDGETS = (100, 200, 500, 1000, 2000)
-"""The paper's five training sessions (episodes)."""
+"""The paper's five training budgets (episodes)."""
 SEEDS = (0, 1, 2)
 WINDOW = 50
 """Running-mean window (episodes), capped at a fifth of the budget."""
@@ -155,7 +155,7 @@ def plot(summaries: list[dict[str, Any]], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--budgets", type=int, nargs="+", default=list(BUDGETS), help="episodes per session")
+    p.add_argument("--budgets", type=int, nargs="+", default=list(BUDGETS), help="episodes per training run")
     p.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS), help="training seeds per budget")
     p.add_argument("--jobs", type=int, default=1, help="runs at a time (1-16; default 1)")
     p.add_argument("--png", default="docs/figures/convergence.png", help="the figure")

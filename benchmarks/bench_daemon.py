@@ -1,4 +1,4 @@
-"""The flight daemon's timing figures (issue 6), with the real MAVSDK against the emulated PX4.
+"""The flight daemon's timing figures, with the real MAVSDK against the emulated PX4.
 
 The emulated PX4 runs in its own process (``quadnav-sim serve``), so this process holds only the
 daemon: its CPU time is the daemon's. Depth arrives at 30 fps (a pre-rendered 424x240 uint16 frame,

@@ -1,4 +1,4 @@
-"""Cost of drawing a minibatch from the replay buffer: uniform against prioritised (issue 4).
+"""Cost of drawing a minibatch from the replay buffer: uniform against prioritised.
 
 The prioritised buffer draws from the cumulative sum of all priorities (O(capacity) per minibatch,
 no sum tree); this prints what that costs beside the gather of the minibatch itself, at the

@@ -1,4 +1,4 @@
-"""Cost of the depth safety filter per frame, as the daemon pays it (issue 4's filter, issue 6's budget).
+"""Cost of the depth safety filter per frame, as the daemon pays it.
 
 For each filter variant: ``Decider.prepare`` on one frame (preprocessing, depth lane and the filter's
 verdict against a full memory), the shipped model, one torch thread. The frame is the one

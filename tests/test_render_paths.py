@@ -4,7 +4,7 @@ Tolerance: the two differ only where a 32x32 pixel straddles a depth edge. The f
 ~13x7.5 (424x240) rays per pixel, the training path 2x2, so at a silhouette the fractions of
 near and far differ by up to ~1/4 of the depth jump; elsewhere they agree to float rounding and the
 mm quantisation (< 1e-4). Measured over these poses: mean |diff| 0.001-0.005, median < 1e-4. We
-require mean < 0.01 (half the 0.02 the brief allows) and median < 1e-3.
+require mean < 0.01 (half the 0.02 the parity target allows) and median < 1e-3.
 """
 
 from __future__ import annotations
