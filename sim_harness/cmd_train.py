@@ -1,14 +1,24 @@
-"""``quadnav-sim train``: DQN training per the paper (flags = the fields of TrainConfig)."""
+"""``quadnav-sim train``: DQN training per the paper (flags = the fields of TrainConfig).
+
+``--recipe FILE`` reads a YAML mapping of TrainConfig keys (recipes/paper.yaml, recipes/shipped.yaml);
+flags given beside it override its keys. Keys map onto TrainConfig by field name, so a field added
+to TrainConfig is a recipe key at once; an unknown key, a wrong type or a value out of range is
+refused naming the file, the key and the value.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from quadnav_onboard.config import ConfigError
+from quadnav_onboard.config import ConfigError, load_yaml_mapping
 
-__all__ = ["add_parser", "run"]
+if TYPE_CHECKING:
+    from sim_harness.rl.config import TrainConfig
+
+__all__ = ["add_parser", "config_for", "load_recipe", "run"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -23,9 +33,37 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--resume", metavar="RUN_DIR", default=None, help="continue a killed run from its last checkpoint"
     )
+    p.add_argument(
+        "--recipe",
+        metavar="FILE",
+        default=None,
+        help="YAML file of TrainConfig keys (recipes/paper.yaml, recipes/shipped.yaml); flags override them",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_dataclass_flags(p, TrainConfig)
     p.set_defaults(func=run)
+
+
+def load_recipe(path: str | Path) -> dict[str, Any]:
+    """A recipe file's keys, validated as a whole TrainConfig (errors name the file, key and value)."""
+    from sim_harness.rl.config import load_train_config
+
+    data = load_yaml_mapping(path)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of TrainConfig keys, got {type(data).__name__}")
+    bad = [k for k in data if not isinstance(k, str)]
+    if bad:
+        raise ConfigError(f"{path}: key {bad[0]!r}: keys are TrainConfig field names (strings)")
+    load_train_config(data, source=str(path))
+    return data
+
+
+def config_for(args: argparse.Namespace) -> TrainConfig:
+    """The run's config: the recipe file's keys (if any), then the flags given."""
+    from sim_harness.rl.config import config_from_args
+
+    base = load_recipe(args.recipe) if getattr(args, "recipe", None) else None
+    return config_from_args(args, base=base)
 
 
 EXIT_INTERRUPTED = 130
@@ -33,12 +71,17 @@ EXIT_INTERRUPTED = 130
 
 
 def run(args: argparse.Namespace) -> int:
-    from sim_harness.rl.config import config_from_args
     from sim_harness.rl.train import TrainingInterrupted, train
     from sim_harness.world import WorldError
 
     try:
         if args.resume is not None:
+            if args.recipe is not None:
+                print(
+                    "quadnav-sim train: --resume continues a run with its own config; drop --recipe",
+                    file=sys.stderr,
+                )
+                return 2
             if not (Path(args.resume) / "config.json").is_file():
                 print(
                     f"quadnav-sim train: {args.resume}: not a run directory (no config.json)", file=sys.stderr
@@ -46,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
                 return 2
             result = train(resume=args.resume, progress=not args.no_progress)
         else:
-            result = train(config_from_args(args), progress=not args.no_progress)
+            result = train(config_for(args), progress=not args.no_progress)
     except (ConfigError, WorldError) as exc:
         print(f"quadnav-sim train: {exc}", file=sys.stderr)
         return 2

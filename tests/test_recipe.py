@@ -1,0 +1,97 @@
+"""Recipe files: recipes/paper.yaml is the code's paper recipe (TrainConfig's defaults),
+recipes/shipped.yaml the config the shipped model was trained with; ``quadnav-sim train --recipe``
+maps a file's keys onto TrainConfig by field name, and refuses bad ones naming file, key and value."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from quadnav_onboard.checkpoint import load_checkpoint
+from quadnav_onboard.config import ConfigError
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH
+from sim_harness import cmd_train
+from sim_harness.rl.config import TrainConfig, load_train_config
+
+REPO = Path(__file__).resolve().parent.parent
+PAPER = REPO / "recipes" / "paper.yaml"
+SHIPPED = REPO / "recipes" / "shipped.yaml"
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    cmd_train.add_parser(parser.add_subparsers())
+    return parser.parse_args(["train", *argv])
+
+
+def test_paper_recipe_file_is_the_code_s_paper_recipe() -> None:
+    """recipes/paper.yaml loads into exactly TrainConfig() (the defaults are the paper's recipe)."""
+    assert load_train_config(cmd_train.load_recipe(PAPER), str(PAPER)) == TrainConfig()
+    assert cmd_train.config_for(_parse(["--recipe", str(PAPER)])) == TrainConfig()
+
+
+def test_shipped_recipe_file_is_what_the_shipped_model_was_trained_with() -> None:
+    """recipes/shipped.yaml equals the TrainConfig in default.pt's meta (keys added to TrainConfig
+    since then at their defaults), and it differs from the paper's recipe."""
+    meta = load_checkpoint(DEFAULT_MODEL_PATH).meta["train_config"]
+    trained = load_train_config(meta, "default.pt meta.train_config")
+    shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
+    assert shipped == trained
+    assert shipped != TrainConfig()
+
+
+def test_flags_override_the_recipe_file_s_keys() -> None:
+    """A flag beside --recipe wins over the file; the file's other keys stay."""
+    cfg = cmd_train.config_for(_parse(["--recipe", str(SHIPPED), "--episodes", "3", "--seed", "7"]))
+    base = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
+    assert (cfg.episodes, cfg.seed) == (3, 7)
+    assert dataclasses.replace(cfg, episodes=base.episodes, seed=base.seed) == base
+
+
+def test_every_train_config_field_is_a_recipe_key(tmp_path: Path) -> None:
+    """Keys map by field name: a file naming each field with its default loads to the defaults."""
+    import yaml
+
+    path = tmp_path / "all.yaml"
+    path.write_text(yaml.safe_dump(TrainConfig().to_dict()), encoding="utf-8")
+    assert load_train_config(cmd_train.load_recipe(path), str(path)) == TrainConfig()
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("episodes: 100\nepisodez: 5\n", ["key 'episodez'", "unknown key"]),
+        ("learning_rate: .nan\n", ["key 'learning_rate'", "nan"]),
+        ("episodes: 0\n", ["key 'episodes'", "bad value 0"]),
+        ("double_dqn: maybe\n", ["key 'double_dqn'", "maybe"]),
+        ("procedural_families: [corridor, tunnels]\n", ["key 'procedural_families'", "tunnels"]),
+        ("- episodes\n", ["expected a mapping"]),
+        ("", ["empty"]),
+    ],
+)
+def test_a_bad_recipe_is_refused_naming_file_key_and_value(
+    tmp_path: Path, text: str, words: list[str]
+) -> None:
+    """Unknown keys, NaN, out-of-range values, wrong types, an unknown family, a list or an empty
+    file: ConfigError naming the file (and the key and value where there is one)."""
+    path = tmp_path / "bad.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as err:
+        cmd_train.config_for(_parse(["--recipe", str(path)]))
+    message = str(err.value)
+    assert str(path) in message
+    for word in words:
+        assert word.lower() in message.lower(), message
+
+
+def test_train_command_exits_2_on_a_bad_recipe(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """quadnav-sim train --recipe with an unknown key trains nothing and exits 2 naming it."""
+    path = tmp_path / "bad.yaml"
+    path.write_text("episodez: 5\n", encoding="utf-8")
+    args = _parse(["--recipe", str(path), "--out-dir", str(tmp_path / "runs")])
+    assert cmd_train.run(args) == 2
+    assert "episodez" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
