@@ -87,8 +87,8 @@ class _Tasks:
 class FlightDaemon:
     """Fly one mission. Build with sources, a vehicle link and a policy; ``await run()``.
 
-    ``cfg``, the sources and ``trigger`` may be replaced until :meth:`run` builds the flight's
-    tasks from them."""
+    ``cfg``, the sources and ``trigger`` may be replaced until :meth:`run`, which builds the
+    flight's tasks again from them."""
 
     def __init__(
         self,
@@ -123,9 +123,9 @@ class FlightDaemon:
         self.state = FlightState(self.recorder)
         """The phase, the commanding flags and the stop request: the only copy."""
         self.stats = RunStats()
-        self.tasks: _Tasks | None = None
-        """The flight's parts, once :meth:`run` built them."""
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dqn")
+        self.tasks: _Tasks = self._build()
+        """The flight's parts (built again by :meth:`run`, from the inputs then)."""
         self._kernels_at_arming: dict[str, int] | None = None
         self._ramp_end_world_m: np.ndarray | None = None
         self._signals = 0
@@ -166,28 +166,27 @@ class FlightDaemon:
     @property
     def steps(self) -> int:
         """Mission steps flown so far."""
-        return 0 if self.tasks is None else self.tasks.planner.steps
+        return self.tasks.planner.steps
 
     @property
     def pending_step(self) -> PendingStep | None:
         """The mission's step in progress (decided, not yet ended)."""
-        return None if self.tasks is None else self.tasks.planner.pending
+        return self.tasks.planner.pending
 
     @property
     def next_step_mono(self) -> float | None:
         """When the mission's next step boundary falls (monotonic s); None outside the mission."""
-        return None if self.tasks is None else self.tasks.preparer.next_step_mono_s
+        return self.tasks.preparer.next_step_mono_s
 
     @property
     def latest_odom(self) -> Latest[OdometrySample]:
         """The newest odometry sample, in the ground frame."""
-        assert self.tasks is not None, "the odometry ingest starts with run()"
         return self.tasks.odometry.latest
 
     @property
     def deferred_stop(self) -> tuple[StopReason, str] | None:
         """A stop the supervisor found on a quiet link, waiting for the link's verdict."""
-        return None if self.tasks is None else self.tasks.supervisor.deferred_stop
+        return self.tasks.supervisor.deferred_stop
 
     # --- entry point ---------------------------------------------------------------------------
 
@@ -338,7 +337,7 @@ class FlightDaemon:
     # --- lifecycle -----------------------------------------------------------------------------
 
     async def _lifecycle(self, tg: asyncio.TaskGroup, background: list[asyncio.Task[Any]]) -> None:
-        tasks = self._tasks()
+        tasks = self.tasks
         try:
             await self._connect(tg, background)
             self.state.enter(Phase.PREFLIGHT)
@@ -365,10 +364,6 @@ class FlightDaemon:
             self.request_stop(StopReason.INTERNAL_ERROR, f"{type(exc).__name__}: {exc}")
         finally:
             await self._stop_ladder()
-
-    def _tasks(self) -> _Tasks:
-        assert self.tasks is not None, "built by run()"
-        return self.tasks
 
     async def _until_stopped(self, coro: Coroutine[Any, Any, None]) -> None:
         """Run ``coro`` until it returns or a stop is requested (then cancel it)."""
@@ -418,7 +413,7 @@ class FlightDaemon:
             return
         from quadnav_onboard.trigger import wait_for_go
 
-        tasks = self._tasks()
+        tasks = self.tasks
         latest = tasks.odometry.latest
         tasks.streamer.command(CurrentPose(lambda: latest.value))
         self.state.start_streaming()
@@ -431,7 +426,7 @@ class FlightDaemon:
         """Stream a setpoint at the current position, arm and switch to offboard (unless the pilot
         already did), then ramp up and over to the path start."""
         self.state.enter(Phase.TAKEOFF)
-        tasks = self._tasks()
+        tasks = self.tasks
         cfg = self.cfg.mission
         odom = tasks.odometry.latest.value
         assert odom is not None
@@ -514,7 +509,7 @@ class FlightDaemon:
         setpoint (its offboard plugin then forgets the setpoint): starting right after one narrows
         that window to the time between the two calls."""
         sent = self.stats.setpoints
-        self._tasks().streamer.wake()
+        self.tasks.streamer.wake()
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(2.0 / self.cfg.vehicle.setpoint_rate_hz):
                 while self.stats.setpoints == sent:
@@ -539,7 +534,7 @@ class FlightDaemon:
             self.request_stop(StopReason.INTERNAL_ERROR, "lifecycle ended without a stop reason")
         stop = self.state.stop
         assert stop is not None
-        tasks = self._tasks()
+        tasks = self.tasks
         self.state.stopping()
         self.notifier.status(f"stopping: {stop.reason.value}")
         tasks.planner.close(stop.reason)
@@ -550,12 +545,11 @@ class FlightDaemon:
     def _shutdown(self) -> FlightSummary:
         """The flight's summary, written into the record as it closes."""
         reason = self.stop_reason or StopReason.INTERNAL_ERROR
-        planner = self.tasks.planner if self.tasks is not None else None
-        odom = self.tasks.odometry.latest.value if self.tasks is not None else None
+        planner = self.tasks.planner
+        odom = self.tasks.odometry.latest.value
         pos = np.asarray(odom.pos_world_m) if odom is not None else np.full(3, np.nan)
-        t0 = planner.t_start_mono_s if planner is not None else math.nan
+        t0, t1 = planner.t_start_mono_s, planner.t_end_mono_s
         started = math.isfinite(t0)
-        t1 = planner.t_end_mono_s if planner is not None and math.isfinite(planner.t_end_mono_s) else t0
         summary = FlightSummary.build(
             reason=reason,
             detail=self.stop_detail,
@@ -565,7 +559,7 @@ class FlightDaemon:
             else 0.0,
             flight_time_s=(t1 - t0) if started else 0.0,
             crashed=reason is StopReason.CRASH,
-            total_reward=0.0 if planner is None else planner.total_reward,
+            total_reward=planner.total_reward,
             stats=self.stats,
             model_sha256=self.policy.checkpoint.sha256,
         )
