@@ -2,9 +2,12 @@
 with a safety supervisor that can cut in at every arrow. See docs/daemon.md.
 
 Modules: :mod:`config` (the frozen flight config), :mod:`supervisor` (StopReason, ExitCode, checks),
-:mod:`mission` (pure step geometry shared with training), :mod:`loops` (the concurrent tasks),
-:mod:`ladder` (stop response and summary), :mod:`app` (the lifecycle), :mod:`hardware` and
-:mod:`dryrun` (wiring), :mod:`testing` (fakes for tests).
+:mod:`mission` (the step's one-vehicle geometry and the setpoint trajectories), :mod:`stepper` (the
+planner step of :mod:`quadnav_onboard.step` with N = 1), :mod:`state` (the flight's phase and stop
+request), :mod:`loops` (the sensor, streamer and supervisor tasks), :mod:`planner` (the mission
+task), :mod:`preflight`, :mod:`ladder` (the stop response), :mod:`summary`, :mod:`app` (the
+lifecycle that composes them), :mod:`hardware` and :mod:`dryrun` (wiring), :mod:`testing` (fakes
+for tests).
 """
 
 from quadnav_onboard.daemon.app import FlightDaemon
