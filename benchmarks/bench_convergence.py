@@ -125,6 +125,10 @@ def plot(summaries: list[dict[str, Any]], path: Path) -> None:
         ax.set_xlabel("episode")
         ax.set_ylabel("average reward")
         ax.grid(alpha=0.3)
+    lo = min(min(s["curve_min"]) for s in summaries)
+    hi = max(max(s["curve_max"]) for s in summaries)
+    for ax in flat[: len(summaries)]:  # one reward scale, so the panels compare
+        ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
     flat[0].legend(fontsize=8, loc="upper left")
     ax = flat[len(summaries)] if len(summaries) < len(flat) else None
     if ax is not None:
@@ -140,7 +144,7 @@ def plot(summaries: list[dict[str, Any]], path: Path) -> None:
         ax.plot(budgets, [s["final_avg_reward_mean"] for s in summaries], "o-", color="tab:red", label="mean")
         ax.set_xscale("log")
         ax.set_xticks(budgets, [str(b) for b in budgets])
-        ax.set_title(f"final average reward (last {int(FINAL_FRACTION * 100)} % of the episodes)")
+        ax.set_title(f"final average reward (last {int(FINAL_FRACTION * 100)} % of episodes)")
         ax.set_xlabel("training budget (episodes)")
         ax.set_ylabel("average reward")
         ax.grid(alpha=0.3)
@@ -205,6 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         "load_avg_1min_before": round(load_before, 2),
         "load_avg_1min_after": round(os.getloadavg()[0], 2),
         "wall_s": round(time.monotonic() - t0, 1),
+        "runs_wall_s_sum": round(sum(r["wall_s"] for r in done.values()), 1),
         "final_fraction": FINAL_FRACTION,
         "budgets": summaries,
     }

@@ -2,6 +2,7 @@
 
     .venv/bin/python scripts/gen_config_reference.py            # rewrite docs/configuration.md
     .venv/bin/python scripts/gen_config_reference.py --check    # exit 1 if it differs from the code
+    .venv/bin/python scripts/gen_config_reference.py --yaml     # the flight config's defaults, commented
 
 Two trees: the flight config (``quadnav_onboard.daemon.config.FlightConfig``, what
 ``quadnav-onboard --config FILE`` reads) and the training config
@@ -29,8 +30,9 @@ tests/test_config_reference.py fails when it no longer matches the code. Do not 
 
 A config file is YAML; a key left out takes its default, an unknown key, a wrong type, NaN, ±inf
 or a value outside the stated range is refused with the file, the key and the value named.
-`quadnav-onboard --print-config` prints the flight config's defaults as a commented YAML to start
-a file from. Ranges: `[a, b]` includes both ends, `(a, b]` excludes `a`.
+`python scripts/gen_config_reference.py --yaml` prints the flight config's defaults as a commented
+YAML to start a file from (it loads back into the defaults). Ranges: `[a, b]` includes both ends,
+`(a, b]` excludes `a`.
 """
 
 FLIGHT_INTRO = """\
@@ -62,11 +64,19 @@ def document() -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--check", action="store_true", help="exit 1 if the file differs from the code")
+    p.add_argument(
+        "--yaml", action="store_true", help="print the flight config's defaults as a commented YAML"
+    )
     p.add_argument("--out", type=Path, default=OUT, help=f"where to write (default: {OUT.relative_to(REPO)})")
     args = p.parse_args(argv)
     from quadnav_onboard.config_reference import MissingDocstringError
 
     try:
+        if args.yaml:
+            from quadnav_onboard.config_reference import flight_config_yaml
+
+            sys.stdout.write(flight_config_yaml())
+            return 0
         text = document()
     except MissingDocstringError as exc:
         print(f"gen_config_reference: {exc}", file=sys.stderr)

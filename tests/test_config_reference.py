@@ -128,6 +128,12 @@ def test_print_config_yaml_loads_back_into_the_defaults() -> None:
         assert re.search(rf"^{f.name}:", text, re.MULTILINE), f.name
 
 
+def test_the_script_prints_the_commented_yaml(capsys: pytest.CaptureFixture[str]) -> None:
+    """--yaml writes the flight config's commented defaults to stdout."""
+    assert gen.main(["--yaml"]) == 0
+    assert capsys.readouterr().out == flight_config_yaml()
+
+
 def test_a_null_section_s_commented_keys_uncomment_into_its_defaults() -> None:
     """``shield: null`` is followed by its keys commented out; uncommented they are ShieldConfig()."""
     lines = flight_config_yaml().splitlines()
