@@ -167,7 +167,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--cache", default=None, help="folder of finished runs (B_S.json): reused, so a killed study resumes"
     )
+    p.add_argument(
+        "--cached-only",
+        action="store_true",
+        help="train nothing: draw the runs already in --cache (a study cut short; the JSON lists the seeds)",
+    )
     args = p.parse_args(argv)
+    if args.cached_only and not args.cache:
+        p.error("--cached-only needs --cache DIR")
     if not 1 <= args.jobs <= 16:
         p.error(f"--jobs: bad value {args.jobs}: range [1, 16]")
     if any(not 1 <= b <= 100_000 for b in args.budgets):
@@ -177,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     if len(args.budgets) > 5:
         p.error("--budgets: at most 5 (one panel each)")
     jobs = [(b, s) for b in sorted(args.budgets, reverse=True) for s in args.seeds]  # the longest first
+    if args.cached_only:
+        jobs = [(b, s) for b, s in jobs if (Path(args.cache) / f"{b}_{s}.json").is_file()]
     load_before = os.getloadavg()[0]
     t0 = time.monotonic()
     done: dict[tuple[int, int], dict[str, Any]] = {}
@@ -192,7 +201,14 @@ def main(argv: list[str] | None = None) -> int:
                 f"reward {np.mean(run['rewards'][-tail:]):.3f} (elapsed {time.monotonic() - t0:.0f} s)",
                 flush=True,
             )
-    summaries = [summarise(b, [done[(b, s)] for s in args.seeds]) for b in sorted(args.budgets)]
+    summaries = [
+        summarise(b, [done[(b, s)] for s in args.seeds if (b, s) in done])
+        for b in sorted(args.budgets)
+        if any((b, s) in done for s in args.seeds)
+    ]
+    if not summaries:
+        print("no finished runs to draw", file=sys.stderr)
+        return 1
     plot(summaries, Path(args.png))
     from sim_harness.rl.config import TrainConfig
     from sim_harness.rl.runlog import git_commit
