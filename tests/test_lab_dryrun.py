@@ -26,17 +26,23 @@ FLIGHT = REPO / "config" / "flight.yaml"
 @pytest.mark.e2e
 @pytest.mark.slow
 def test_the_flight_config_dry_run_in_lab_env_2_ends_safe_and_its_record_shows_fence_and_path(tmp_path):
-    rec_dir = tmp_path / "records"
-    flight = subprocess.run(
-        [sys.executable, "-m", "quadnav_onboard.cli", "--dry-run", "--config", str(FLIGHT),
-         "--world", "lab02.yaml", "--record-dir", str(rec_dir), "--json", "--log-format", "json"],
-        capture_output=True, text=True, timeout=300, check=False, cwd=tmp_path,
-    )
-    assert flight.returncode in (0, 3), flight.stderr[-3000:]  # goal or a safe stop, never a crash (4)
-    summary = json.loads(flight.stdout.splitlines()[-1])
+    # The flight config's stale-input limits (0.1 s odometry) are the real flight's: on a loaded
+    # machine a starved sim process can trip one before the first step. That flight never started
+    # the mission, so it is flown again (at most twice more); any other ending is the result.
+    for attempt in range(3):
+        rec_dir = tmp_path / f"records{attempt}"
+        flight = subprocess.run(
+            [sys.executable, "-m", "quadnav_onboard.cli", "--dry-run", "--config", str(FLIGHT),
+             "--world", "lab02.yaml", "--record-dir", str(rec_dir), "--json", "--log-format", "json"],
+            capture_output=True, text=True, timeout=300, check=False, cwd=tmp_path,
+        )
+        assert flight.returncode in (0, 3), flight.stderr[-3000:]  # goal or a safe stop, never a crash (4)
+        summary = json.loads(flight.stdout.splitlines()[-1])
+        if not (summary["steps"] == 0 and summary["stop_reason"] in ("stale_odometry", "stale_depth")):
+            break
     assert summary["crashed"] is False
     assert summary["stop_reason"] != "crash", summary
-    assert summary["steps"] >= 1  # it flew the mission, not a refusal at the start
+    assert summary["steps"] >= 1, summary  # it flew the mission, not a refusal at the start
     cfg = load_flight_config(FLIGHT)
     assert summary["steps"] <= cfg.mission.max_steps
 
