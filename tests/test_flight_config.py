@@ -127,30 +127,30 @@ def test_a_nan_mocap_origin_is_refused(tmp_path: Path) -> None:
         load_flight_config(path)
 
 
-@pytest.mark.parametrize("radius", [8.0, 7.9, 7.8])
+@pytest.mark.parametrize("radius", [3.5, 3.4, 3.31])
 def test_a_goal_radius_reaching_back_to_the_start_is_refused(tmp_path: Path, radius: float) -> None:
-    """The lab path is 8 m long and the start tolerance 0.2 m: a goal radius of 7.8 m or more would
+    """The lab path is 3.5 m long and the start tolerance 0.2 m: a goal radius of 3.3 m or more would
     be met at the start ("goal reached after 0 steps"), so it is refused naming file, key and value."""
     path = _lab_config_with(tmp_path, "mission", "goal_radius_m", radius)
     with pytest.raises(ConfigError) as info:
         load_flight_config(path)
     msg = str(info.value)
     assert f"{path}: key 'mission.goal_radius_m': bad value {radius!r}" in msg
-    assert "start-to-goal distance 8 m" in msg
+    assert "start-to-goal distance 3.5 m" in msg
 
 
 def test_a_goal_radius_short_of_the_start_is_accepted(tmp_path: Path) -> None:
-    path = _lab_config_with(tmp_path, "mission", "goal_radius_m", 7.5)
-    assert load_flight_config(path).mission.goal_radius_m == 7.5
+    path = _lab_config_with(tmp_path, "mission", "goal_radius_m", 3.0)
+    assert load_flight_config(path).mission.goal_radius_m == 3.0
 
 
 @pytest.mark.parametrize(
     ("waypoints", "needles"),
     [
-        ([[0, 0, 1.2], [8, 0, 3.5]], ["mission.waypoints_m[1] [8.0, 0.0, 3.5]", "geofence"]),
-        ([[0, 0, 1.2], [8, 0, 0.3]], ["mission.waypoints_m[1] [8.0, 0.0, 0.3]", "altitude band"]),
-        ([[0, 0, 1.2], [0, 0, 1.2], [8, 0, 1.2]], ["mission.waypoints_m", "[0] and [1] are both"]),
-        ([[0, 0, 1.2], [8, 0, 1e9]], ["mission.waypoints_m.1.2", "1000000000.0"]),
+        ([[0, 0, 1.2], [2, 2, 3.5]], ["mission.waypoints_m[1] [2.0, 2.0, 3.5]", "geofence"]),
+        ([[0, 0, 1.2], [2, 2, 0.3]], ["mission.waypoints_m[1] [2.0, 2.0, 0.3]", "altitude band"]),
+        ([[0, 0, 1.2], [0, 0, 1.2], [2, 2, 1.2]], ["mission.waypoints_m", "[0] and [1] are both"]),
+        ([[0, 0, 1.2], [2, 2, 1e9]], ["mission.waypoints_m.1.2", "1000000000.0"]),
     ],
 )
 def test_bad_waypoints_name_the_file_the_key_and_the_waypoint(
