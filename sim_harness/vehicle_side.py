@@ -119,6 +119,7 @@ class VehicleSide:
         self._own_run_dir = run_dir is None
         self.run_dir = Path(run_dir) if run_dir is not None else Path(tempfile.mkdtemp(prefix="quadnav-sim-"))
         self.truth: TruthBlock | None = None
+        self._crashed = False
         self.parts: dict[str, Part] = {}
         self.t_ready_s = float("nan")
         """Seconds from start() until every part was ready."""
@@ -138,8 +139,14 @@ class VehicleSide:
         return str(info["host"]), int(info["command_port"])
 
     def crashed(self) -> bool:
-        """The sim's ground truth: did the vehicle hit something."""
-        return self.truth is not None and self.truth.read().crashed
+        """The sim's ground truth: did the vehicle hit something. A writer held up mid-write (a
+        loaded machine can preempt it for tens of milliseconds) gets 0.2 s; past that the last
+        answer stands (a crash, once read, stays true)."""
+        if self.truth is None:
+            return False
+        with contextlib.suppress(TimeoutError):
+            self._crashed = self._crashed or self.truth.read(timeout_s=0.2).crashed
+        return self._crashed
 
     # --- lifecycle -----------------------------------------------------------------------------
     def __enter__(self) -> VehicleSide:
@@ -169,6 +176,7 @@ class VehicleSide:
         stops them all and raises :class:`StartCancelled`."""
         t0 = time.monotonic()
         self.truth = TruthBlock.create()
+        self._crashed = False
         try:
             for name, spec in self.specs().items():
                 self.parts[name] = self._spawn(name, spec)
