@@ -77,6 +77,11 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("shield.seen_margin_m", "zero"): "seen free up to the measured depth itself",
     ("shield.near_m", "zero"): "no free zone around the vehicle",
     ("shield.shadow_m", "zero"): "the seen surfaces only, no shadow points",
+    ("shield.fence_min_m.*", "zero"): "a world coordinate (m)",
+    ("shield.fence_min_m.*", "negative"): "a world coordinate (m)",
+    ("shield.fence_max_m.*", "zero"): "a world coordinate (m)",
+    ("shield.fence_max_m.*", "negative"): "a world coordinate (m)",
+    ("shield.fence_margin_m", "zero"): "the predicted path may reach the geofence's faces",
     # reward constants: the paper's own include 0 and negative values
     ("reward.r_lower", "zero"): "the paper's R_l",
     ("reward.r_lower", "negative"): "a shaping penalty",
@@ -105,6 +110,8 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.per_beta_start", "zero"): "no importance-sampling correction at first",
     ("train.keep_every", "zero"): "no kept snapshots",
     ("train.sim_threads", "zero"): "numba's default thread count",
+    ("train.dagger_iterations", "zero"): "no imitation (the paper)",
+    ("train.dagger_beta", "zero"): "the network flies every step after iteration 0",
 }
 """Values (key pattern, value kind) a numeric field means something by: each is accepted by the
 field's own range; a check across fields (a geofence corner above its opposite, a ceiling below
@@ -144,6 +151,8 @@ def _flight_base() -> dict[str, Any]:
     base = _plain(cfg)
     base["trigger"] = dict(_plain(MissionTriggerConfig()), mode="socket")
     base["shield"]["seen_level_tol_m"] = 0.3  # an optional number: give it one to replace
+    base["shield"]["fence_min_m"] = [-1.0, -1.0, -1.0]  # the optional fence: a box to perturb
+    base["shield"]["fence_max_m"] = [5.0, 5.0, 5.0]
     return base
 
 
