@@ -43,27 +43,6 @@ def record_step(
     recorder: SafeRecorder, t_mono_s: float, record: StepRecord, *, latency_ms: float, primitive: Any
 ) -> None:
     """Record one executed step (``record``, N = 1) decided at ``t_mono_s``, with the decision's
-    latency (ms) and the commanded primitive (drawn with its set)."""
-    r = record.as_dict(0)
-    recorder.step(
-        t_mono_s,
-        step=r["step"],
-        action=r["action"],
-        q_values=record.q_values[0],
-        rel_pos_body_m=record.rel_pos_body_m[0],
-        moving_setpoint_world_m=record.moving_setpoint_world_m[0],
-        pos_world_m=record.pos_world_m[0],
-        reward=r["reward"],
-        reward_terms={
-            "d_prev_m": r["d_prev_m"],
-            "d_now_m": r["d_now_m"],
-            "deviated": r["deviated"],
-            "collided": r["collided"],
-        },
-        progress_m=r["progress_m"],
-        deviation_m=r["deviation_m"],
-        latency_ms=latency_ms,
-        shield_allowed=None if record.shield_allowed is None else record.shield_allowed[0],
-        shield_clearance_m=None if record.shield_clearance_m is None else record.shield_clearance_m[0],
-        primitive=primitive,
-    )
+    latency (ms) and the commanded primitive (drawn with its set): the recorder writes the typed
+    record's fields as they are (``Recorder.step_record``)."""
+    recorder.step_record(t_mono_s, record, latency_ms=latency_ms, primitive=primitive)
