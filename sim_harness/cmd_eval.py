@@ -201,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
     from sim_harness.rl.evaluate import (
+        FilterOverrules,
         env_config_for_policy,
         evaluate,
         format_table,
@@ -253,6 +254,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"quadnav-sim eval: {exc}", file=sys.stderr)
         return 2
     bar = tqdm(total=len(worlds), desc="eval", unit="world", disable=args.no_progress, file=sys.stderr)
+    overrules = FilterOverrules()
     rows = evaluate(
         policy_greedy_fn(policy),
         worlds,
@@ -262,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
         on_world_done=lambda _w: bar.update(1),
         limits=limits,
         depth_noise=noise,
+        overrules=overrules,
     )
     bar.close()
     summary = summarize(rows)
@@ -272,6 +275,9 @@ def run(args: argparse.Namespace) -> int:
         f"{summary['collision_free_rate']:.1%}, "
         f"success among safe flights {summary['success_among_safe']:.1%}"
     )
+    if overrules.decisions:
+        print(f"the filter overruled the DQN's first choice in {overrules.overruled} of "
+              f"{overrules.decisions} decisions ({overrules.rate:.1%})")
     if args.json:
         out = {
             "model": str(model),
@@ -288,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
             "worlds": [str(p) for p in paths],
             "rows": [r.to_dict() for r in rows],
             "summary": summary,
+            "filter_overrules": overrules.to_dict() if overrules.decisions else None,
         }
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=2), encoding="utf-8")

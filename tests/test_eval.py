@@ -275,3 +275,24 @@ def test_seeds_and_counts_out_of_range_are_usage_errors(flag: str, value: str, c
     with pytest.raises(SystemExit) as exc:
         main(["eval", flag, value, "--no-progress"])
     assert exc.value.code == 2 and f"{flag}: must be" in capsys.readouterr().err
+
+
+def test_the_filters_overrules_of_the_first_choice_are_counted() -> None:
+    """A policy that always wants straight ahead into a wall: the filter vetoes it near the wall,
+    and the count says how often it overruled that first choice among the decisions taken."""
+    from sim_harness.rl.evaluate import FilterOverrules
+
+    def first_choice_ahead(depth, rel, allowed):
+        return np.where(allowed[:, FORWARD], FORWARD, np.argmax(allowed, axis=1))
+
+    wall = _world("wall", [{"type": "box", "center": [5, 0, 2], "size": [0.2, 20, 20]}])
+    free = _world("free", [])
+    shielded = EnvConfig(max_steps=20, shield=ShieldConfig(enabled=True))
+    counts = {}
+    for world in (free, wall):
+        counts[world.name] = FilterOverrules()
+        evaluate(first_choice_ahead, [world], trials=2, seed=0, env_config=shielded,
+                 overrules=counts[world.name])
+    assert counts["free"].decisions > 0 and counts["free"].overruled == 0
+    assert 0 < counts["wall"].overruled <= counts["wall"].decisions
+    assert counts["wall"].to_dict()["rate"] == counts["wall"].overruled / counts["wall"].decisions

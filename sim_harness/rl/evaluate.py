@@ -219,6 +219,24 @@ def policy_greedy_fn(policy: Policy) -> GreedyFn:
     return lambda depth, rel, allowed: masked_argmax(policy.q_values_batch(depth, rel), allowed)
 
 
+@dataclasses.dataclass
+class FilterOverrules:
+    """How often the depth safety filter overruled the DQN's first choice (its arg-max over every
+    primitive) in an evaluation's decisions."""
+
+    decisions: int = 0
+    """Decisions taken with the filter on."""
+    overruled: int = 0
+    """Of those, decisions whose unmasked arg-max the filter vetoed."""
+
+    @property
+    def rate(self) -> float:
+        return self.overruled / self.decisions if self.decisions else 0.0
+
+    def to_dict(self) -> dict[str, float | int]:
+        return {"decisions": self.decisions, "overruled": self.overruled, "rate": self.rate}
+
+
 def evaluate(
     act: GreedyFn,
     worlds: Sequence[World],
@@ -230,12 +248,15 @@ def evaluate(
     limits: FlightLimits | None = None,
     depth_noise: DepthNoise | None = None,
     known_rooms: bool = True,
+    overrules: FilterOverrules | None = None,
 ) -> list[EvalRow]:
     """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order.
 
     ``limits``: a flight config's geofence and altitude band, checked at each step's end (outcomes
     ``geofence``/``altitude``) and, with ``known_rooms``, the geofence given to the filter with the
-    world's room (:func:`known_room`). ``depth_noise``: the D435-like noise on every frame."""
+    world's room (:func:`known_room`). ``depth_noise``: the D435-like noise on every frame.
+    ``overrules``: counts the decisions where the filter vetoed the DQN's first choice (costs one
+    more network pass per step when the filter is on)."""
     rows: list[EvalRow] = []
     for w_i, world in enumerate(worlds):
         cfg = env_config
@@ -252,7 +273,12 @@ def evaluate(
         progress = np.zeros(trials)
         while not env.done.all():
             running = ~env.done
-            depth, rel, _, term, trunc, info = env.step(act(depth, rel, env.allowed))
+            actions = act(depth, rel, env.allowed)
+            if overrules is not None and cfg.shield.enabled:
+                first = act(depth, rel, np.ones_like(env.allowed))
+                overrules.decisions += int(running.sum())
+                overrules.overruled += int((running & (first != actions)).sum())
+            depth, rel, _, term, trunc, info = env.step(actions)
             ended = term | trunc
             outcome[ended] = info["outcome"][ended]
             progress[ended] = info["progress_m"][ended]
