@@ -67,6 +67,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--log-format", choices=("auto", "json", "console"), default="auto", help="log format (stderr)"
     )
+    p.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print every flight-config key with its default, type, range, unit and meaning as a "
+        "commented YAML, and exit (docs/configuration.md is the same as tables)",
+    )
     return p
 
 
@@ -91,6 +97,11 @@ def _open_recorder(cfg: Any, metadata: dict[str, str]) -> Any:
 def main(argv: list[str] | None = None) -> int:
     t_start_mono_s = time.monotonic()
     args = build_parser().parse_args(argv)
+    if args.print_config:
+        from quadnav_onboard.config_reference import flight_config_yaml
+
+        sys.stdout.write(flight_config_yaml())
+        return 0
     from quadnav_onboard.logs import configure_logging
 
     configure_logging(json={"auto": None, "json": True, "console": False}[args.log_format])

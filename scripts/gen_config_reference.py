@@ -30,7 +30,8 @@ tests/test_config_reference.py fails when it no longer matches the code. Do not 
 
 A config file is YAML; a key left out takes its default, an unknown key, a wrong type, NaN, ±inf
 or a value outside the stated range is refused with the file, the key and the value named.
-`python scripts/gen_config_reference.py --yaml` prints the flight config's defaults as a commented
+`quadnav-onboard --print-config` (or `python scripts/gen_config_reference.py --yaml`) prints the
+flight config's defaults as a commented
 YAML to start a file from (it loads back into the defaults). Ranges: `[a, b]` includes both ends,
 `(a, b]` excludes `a`.
 """

@@ -1,7 +1,7 @@
 """``quadnav-sim bench``: rendering figures (and env-step figures when ``sim_harness.bench_env`` exists).
 
 Figures, not tests: they are printed with the machine's core count and load, and as JSON with
-``--json`` (stdout) or ``--out PATH``. Targets (issue 3): 32x32 rendering on the densest paper world
+``--json`` (stdout) or ``--out PATH``. Targets: 32x32 rendering on the densest paper world
 >= 10,000 frames/s batched; one 848x480 frame <= 20 ms.
 """
 

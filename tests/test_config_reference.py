@@ -163,3 +163,12 @@ def test_types_ranges_and_units_come_from_the_annotations() -> None:
     shield_rows = {fd.key: fd for s in sections(FlightConfig) if s.path == "shield" for fd in s.fields}
     assert shield_rows["clearance_m"].type == "float in (0, 5]"
     assert shield_rows["clearance_m"].default == ShieldConfig().clearance_m
+
+
+def test_print_config_prints_the_commented_defaults_and_exits_0(capsys) -> None:
+    """`quadnav-onboard --print-config` is the generator's YAML, printed before anything else runs."""
+    from quadnav_onboard.cli import main
+    from quadnav_onboard.config_reference import flight_config_yaml
+
+    assert main(["--print-config"]) == 0
+    assert capsys.readouterr().out == flight_config_yaml()

@@ -87,7 +87,8 @@ def test_a_drifting_side_fails_the_parity_check(policy: Policy, monkeypatch: pyt
 
     def drifted(*args, **kwargs):
         if kwargs.get("q_values") is not None:  # the daemon's side only
-            kwargs["reward_params"] = dataclasses.replace(kwargs["reward_params"], r_upper=kwargs["reward_params"].r_upper + 0.5)
+            params = kwargs["reward_params"]
+            kwargs["reward_params"] = dataclasses.replace(params, r_upper=params.r_upper + 0.5)
         return original(*args, **kwargs)
 
     monkeypatch.setattr(step, "finish_step", drifted)
