@@ -3,7 +3,11 @@
 VENV ?= .venv
 PIP := $(VENV)/bin/pip
 TORCH_PIN := torch==2.13.0
+# The tests run in two passes: everything but the real-time flights on parallel workers, then the
+# flights (the `e2e` marker: the daemon against the emulated vehicle side over MAVLink/UDP, with the
+# flight's stale-input limits) one at a time, so a busy neighbour never starves a flight's sim.
 PYTEST_ARGS ?= -n 3
+E2E_PYTEST_ARGS ?=
 
 .PHONY: dry-run test install install-dev lint system-deps
 
@@ -44,4 +48,5 @@ lint: install-dev
 
 ## Quick start 2: install with the dev extra, then lint and run the whole test suite.
 test: lint system-deps
-	$(VENV)/bin/pytest $(PYTEST_ARGS)
+	$(VENV)/bin/pytest $(PYTEST_ARGS) -m "not e2e"
+	$(VENV)/bin/pytest $(E2E_PYTEST_ARGS) -m e2e

@@ -303,6 +303,9 @@ def test_daemon_with_config_serve_flies_a_standalone_serve_after_the_go(world: P
     try:
         assert serve.stdout is not None
         lines = [serve.stdout.readline() for _ in range(4)]
+        if serve.poll() is not None:
+            err = serve.stderr.read()[-2000:] if serve.stderr else ""
+            pytest.fail(f"serve exited {serve.returncode}: {err}")
         assert any(f"udpin://0.0.0.0:{api_port}" in line for line in lines), lines
         daemon = subprocess.Popen(
             [sys.executable, "-m", "quadnav_onboard.cli", "--config", str(config), "--json"],

@@ -7,27 +7,23 @@ config, the command line and the run directory's ``config.json`` say the same th
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
-import itertools
 import json
 import typing
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from typing import Annotated, Any
 
 import pydantic
 
 from quadnav_onboard.config import CONFIG_DICT, ConfigError, parse_config
+from quadnav_onboard.config_reference import field_docstrings
 from sim_harness.procgen import FAMILIES
 
 __all__ = [
     "TrainConfig",
     "add_dataclass_flags",
     "config_from_args",
-    "field_docs",
     "load_train_config",
     "read_config_file",
 ]
@@ -235,28 +231,10 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
     return cfg
 
 
-@cache
-def field_docs(cls: type) -> dict[str, str]:
-    """The docstring under each dataclass field (read from the class source)."""
-    tree = ast.parse(inspect.getsource(cls))
-    body = tree.body[0].body  # type: ignore[attr-defined]
-    docs: dict[str, str] = {}
-    for prev, node in itertools.pairwise(body):
-        if (
-            isinstance(prev, ast.AnnAssign)
-            and isinstance(prev.target, ast.Name)
-            and isinstance(node, ast.Expr)
-            and isinstance(node.value, ast.Constant)
-            and isinstance(node.value.value, str)
-        ):
-            docs[prev.target.id] = node.value.value.strip()
-    return docs
-
-
 def add_dataclass_flags(parser: argparse.ArgumentParser, cls: type) -> None:
     """One ``--flag`` per field of ``cls`` (default: None = keep the config's value)."""
     hints = typing.get_type_hints(cls)
-    docs = field_docs(cls)
+    docs = field_docstrings(cls)
     for f in dataclasses.fields(cls):
         flag = "--" + f.name.replace("_", "-")
         tp = hints[f.name]
