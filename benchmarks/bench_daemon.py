@@ -326,7 +326,7 @@ def main() -> None:
     ap.add_argument(
         "--prepare-every-frame",
         action="store_true",
-        help="depth.prepare_within_s: null, every frame prepared on arrival (as before round 15)",
+        help="depth.prepare_within_s: null, every frame prepared on arrival (the daemon before that key)",
     )
     ap.add_argument(
         "--switch-interval",

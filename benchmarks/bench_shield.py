@@ -16,7 +16,7 @@ floor), the shipped one, and the shipped one at the memory its scale implies.
 ``--flights`` times the verdict where the corridor scene above cannot: in real evaluation flights
 (the shipped model over Env 1-7, eval seed 0, one vehicle per call as in the daemon), every call
 of ``shield_verdict`` the sim makes, with the memory the scale implies (8 decisions at 0.5 m) and
-with the 4 decisions it kept before round 12. Flights may differ between the two (the filter may allow
+with the 4 decisions it kept at first. Flights may differ between the two (the filter may allow
 different moves), so each line also says how many calls and goals it timed.
 
     .venv/bin/python benchmarks/bench_shield.py --starvation [--scale 0.5] [--json OUT]
@@ -206,7 +206,7 @@ def main_starvation(args: argparse.Namespace, policy: Policy, shipped: ShieldCon
 def main_flights(args: argparse.Namespace, policy: Policy, shipped: ShieldConfig) -> None:
     out = {"scale_m": args.scale, "trials": args.trials, "flights": {}}
     time_flights(policy, shipped, args.scale, 1, envs=(1,))  # warm-up: compiled kernels, caches
-    for name, steps in (("memory before round 12 (4 decisions)", 4), ("shipped (memory at scale)", None)):
+    for name, steps in (("memory of 4 decisions (the first filter)", 4), ("shipped (memory at scale)", None)):
         r = time_flights(policy, shipped, args.scale, args.trials, memory_steps=steps)
         out["flights"][name] = r
         print(f"{name:38s} memory {r['memory_steps']:3d}  verdict median {r['verdict_median_ms']:.3f} ms  "

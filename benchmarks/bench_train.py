@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_train.py [--episodes 2000] [--json OUT] [extra TrainConfig flags]
 
 Runs ``quadnav-sim train`` in-process with the paper's recipe (defaults of TrainConfig) into a
-temporary folder, prints the figures and writes them as JSON. The issue's target: 2000 episodes in
+temporary folder, prints the figures and writes them as JSON. The target: 2000 episodes in
 <= 600 s wall on a 2-core CPU. Record the machine load beside the figure: on a shared machine the
 figure is pessimistic.
 """

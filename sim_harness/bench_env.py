@@ -2,7 +2,7 @@
 
 ``run()`` steps :class:`sim_harness.env.VecQuadNavEnv` over the seven training worlds with random
 actions (auto-reset on) and returns the figures as a dict; ``quadnav-sim bench`` prints them.
-The issue's target: >= 5,000 env steps/s on a 2-core CPU.
+The target: >= 5,000 env steps/s on a 2-core CPU.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 __all__ = ["TARGET_STEPS_PER_S", "run"]
 
 TARGET_STEPS_PER_S = 5_000.0
-"""The issue's figure for vectorised env steps per second."""
+"""The target for vectorised env steps per second."""
 
 
 def _one(n_envs: int, seconds: float, seed: int) -> dict[str, Any]:

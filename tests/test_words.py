@@ -16,6 +16,7 @@ WORDS = re.compile(
     "|".join(
         [
             r"\bstop \d+",  # a work round by number
+            r"\bround \d+",  # the same, renamed
             r"\bthis " r"stop\b",
             r"\bhelp" r"er ses" r"sion",
             r"\bissue #?\d+",  # a tracker issue by number
@@ -49,6 +50,7 @@ def test_the_pattern_refuses_round_and_issue_numbers_but_not_the_product_s_stop(
     assert hits(f"as measured in {stop_n}'s weights") == [stop_n]
     assert hits(f"see {issue_n} and {this_stop}") == [issue_n, this_stop]
     assert hits("the brief allows 0.02") == ["the brief"]
+    assert hits("measured in round 15") == ["round 15"]
     for legal in (
         "StopReason.GEOFENCE ends the flight",
         "the stop ladder: hold, land, disarm",

@@ -53,7 +53,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def test_issue_example_loads_with_every_shape(tmp_path: Path) -> None:
-    """The issue's example file loads into the shapes it describes."""
+    """The example world file loads into the shapes it describes."""
     w = load_world(_write(tmp_path, ISSUE_EXAMPLE))
     assert w.name == "env04-slalom-lr" and w.floor_z_m == 0.0 and w.ceiling_z_m == 8.0
     assert w.obstacles == (Box((10, 1.5, 2), (1, 3, 4), 0.0), Sphere((50, 0, 2), 1.2),
