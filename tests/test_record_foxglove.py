@@ -103,8 +103,7 @@ def test_every_channel_of_a_dry_run_decodes_with_its_schema(dry_run_record):
             else:
                 declared = JSON_SCHEMAS[schema.name]
                 assert set(declared["required"]) <= set(decoded) <= set(declared["properties"]), channel.topic
-    # a dry run has no PX4 SYSTEM_TIME (the emulator sends none); everything else is there
-    assert set(counts) == set(TOPICS) - {"/vehicle/px4_time"}, set(TOPICS) - set(counts)
+    assert set(counts) == set(TOPICS), set(TOPICS) - set(counts)  # PX4's clock included
     assert counts["/planner/primitives"] == counts["/planner/step"] > 0
     assert counts["/tf"] == counts["/odometry"] > 0
 
@@ -287,3 +286,16 @@ def test_px4s_system_time_goes_from_the_link_into_the_record(tmp_path):
         rec.close("operator_stop", {})
     (px4,) = read_record(path).px4_time
     assert px4["px4_boot_us"] == 2_500_000 and px4["px4_unix_us"] == 1_796_000_000_000_000
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_a_dry_runs_record_holds_px4s_clock_from_the_emulated_px4(dry_run_record):
+    """The emulated PX4 streams SYSTEM_TIME as PX4 does: the dry run's record carries PX4's time
+    since boot and its UTC (the host's, as on SITL), taken during the flight."""
+    record, t_before, t_after = dry_run_record
+    rec = read_record(record, load_depth=False)
+    assert rec.px4_time, "no PX4 clock in the record"
+    px4 = rec.px4_time[-1]
+    assert px4["px4_boot_us"] > 0
+    assert t_before * 1e6 <= px4["px4_unix_us"] <= t_after * 1e6

@@ -40,6 +40,8 @@ __all__ = ["EmulatorConfig", "Px4Emulator", "TruePose"]
 log = get_logger(__name__)
 
 _FAST = ("LOCAL_POSITION_NED", "ATTITUDE_QUATERNION", "ODOMETRY")
+SYSTEM_TIME_INTERVAL_S = 1.0
+"""SYSTEM_TIME's period (s): PX4 streams it at 1 Hz on every MAVLink instance."""
 _SLOW = ("SYS_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "GLOBAL_POSITION_INT")
 
 
@@ -226,6 +228,8 @@ class Px4Emulator:
     def _default_interval_s(self, name: str) -> float:
         if name == "HEARTBEAT":
             return 1.0 / self.config.heartbeat_hz
+        if name == "SYSTEM_TIME":
+            return SYSTEM_TIME_INTERVAL_S
         if name in _FAST:
             return 1.0 / self.config.telemetry_hz
         return 1.0 / self.config.status_hz
@@ -301,6 +305,7 @@ class Px4Emulator:
             "EXTENDED_SYS_STATE": lambda: tm.extended_sys_state(snap),
             "HOME_POSITION": lambda: tm.home_position(snap, self.config),
             "GLOBAL_POSITION_INT": lambda: tm.global_position_int(snap, self.config),
+            "SYSTEM_TIME": lambda: tm.system_time(snap, time.time()),
         }
         for name, build in builders.items():
             interval = self.interval_s(name)

@@ -107,6 +107,11 @@ def heartbeat(s: VehicleSnapshot) -> m.MAVLink_message:
     )
 
 
+def system_time(s: VehicleSnapshot, unix_time_s: float) -> m.MAVLink_message:
+    """PX4's clock: its UTC (``unix_time_s``, the host's, as SITL takes it) and its time since boot."""
+    return m.MAVLink_system_time_message(int(unix_time_s * 1e6), s.t_boot_ms & 0xFFFFFFFF)
+
+
 def _quat_ned(yaw_rad: float) -> list[float]:
     return [float(v) for v in quat_world_to_ned(quat_from_yaw(yaw_rad))]
 
