@@ -236,6 +236,10 @@ def _fly(
 
             parts = hardware_parts(cfg, args.config or "config")
         _check_mission_path(args, cfg, parts["path"], meta.get("world"))
+        # The deviation limit round the path flown is known space to the filter, as in the eval.
+        band = cfg.shield.with_band(parts["path"].waypoints_m, cfg.safety.max_deviation_m)
+        cfg = replace(cfg, shield=band)
+        meta["config"] = json.dumps(asdict(cfg), default=str)
         recorder = _open_recorder(cfg, meta)
         if recorder is not None:
             with contextlib.suppress(Exception):

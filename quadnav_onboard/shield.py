@@ -42,6 +42,7 @@ __all__ = [
     "PointMemory",
     "ShieldConfig",
     "allowed_actions",
+    "band_clearance",
     "depth_points_heading",
     "fence_clearance",
     "points_per_view",
@@ -85,8 +86,9 @@ class ShieldConfig:
     """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot).
     Range: [0, 5]."""
     min_travel_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
-    """A decision taken less than this far (m) from the last remembered one replaces it instead of
-    pushing the oldest out: hovering in place does not forget what was seen on the way. Range: [0, 5]."""
+    """A decision taken less than this far (m) from a remembered one (the nearest such) replaces it
+    instead of pushing the oldest out: hovering in place, or going back and forth between two
+    places, does not forget what was seen on the way. Range: [0, 5]."""
     track_omega_rad_s: Annotated[float, pydantic.Field(gt=0, le=100)] = 6.0
     """Natural frequency (rad/s) of the position loop assumed when predicting the flown path. This
     is the daemon's model of PX4, kept apart from the simulated vehicle (``sim_harness.quad``) on
@@ -150,6 +152,18 @@ class ShieldConfig:
     fence_margin_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.1
     """How far (m) inside the known room's faces the predicted path must stay (the position loop's
     tracking error beyond the prediction). Range: [0, 5], below ``clearance_m``."""
+    band_waypoints_m: tuple[tuple[_CoordM, _CoordM, _CoordM], ...] | None = None
+    """The rough path (world, m, each coordinate in [-10 000, 10 000], >= 2 waypoints) whose
+    deviation band is known space, as the room is: a flight stops when the vehicle gets farther
+    than ``band_half_width_m`` from it (``safety.max_deviation_m``), so no primitive whose predicted
+    flown path (look-ahead included) comes nearer than ``band_margin_m`` to leaving the band is
+    allowed (:meth:`with_band`). None (with ``band_half_width_m``): no band."""
+    band_half_width_m: Annotated[float, pydantic.Field(gt=0, le=50)] | None = None
+    """Half-width (m) of that band: the flight's deviation limit. Range: (0, 50], above
+    ``band_margin_m``; None together with ``band_waypoints_m``."""
+    band_margin_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.1
+    """How far (m) inside the band's edge the predicted path must stay (tracking error beyond the
+    prediction). Range: [0, 5], below ``band_half_width_m``."""
 
     def __post_init__(self) -> None:
         if not self.clearance_m > 0 or not self.search_radius_m > self.clearance_m:
@@ -178,11 +192,41 @@ class ShieldConfig:
                 raise ValueError(f"fence_min_m and fence_max_m must be 3 finite numbers, got {lo!r}, {hi!r}")
             if not all(a < b for a, b in zip(lo, hi, strict=True)):
                 raise ValueError(f"fence_min_m {list(lo)} must be below fence_max_m {list(hi)} on every axis")
+        self._check_band()
         if not 0 <= self.fence_margin_m < self.clearance_m:
             raise ValueError(
                 f"need 0 <= fence_margin_m < clearance_m, got fence_margin_m {self.fence_margin_m!r} and "
                 f"clearance_m {self.clearance_m!r}"
             )
+
+    def _check_band(self) -> None:
+        pts, half = self.band_waypoints_m, self.band_half_width_m
+        if (pts is None) != (half is None):
+            raise ValueError(
+                f"give both band_waypoints_m and band_half_width_m or neither, got {pts!r} and {half!r}"
+            )
+        if pts is not None and half is not None:
+            finite = all(math.isfinite(v) for p in pts for v in p)
+            if len(pts) < 2 or any(len(p) != 3 for p in pts) or not finite:
+                raise ValueError(f"band_waypoints_m must be >= 2 points of 3 finite numbers, got {pts!r}")
+            if not 0 <= self.band_margin_m < half:
+                raise ValueError(
+                    f"need 0 <= band_margin_m < band_half_width_m, got band_margin_m {self.band_margin_m!r} "
+                    f"and band_half_width_m {half!r}"
+                )
+
+    def with_band(self, waypoints_m: ArrayLike | None, half_width_m: float | None) -> ShieldConfig:
+        """This filter keeping the predicted path within ``half_width_m`` (less ``band_margin_m``)
+        of the polyline ``waypoints_m`` (world, m, (W, 3)): a flight's deviation limit as known
+        space (None, None: unchanged)."""
+        if waypoints_m is None or half_width_m is None:
+            return self
+        pts = np.asarray(waypoints_m, dtype=np.float64).reshape(-1, 3)
+        return replace(
+            self,
+            band_waypoints_m=tuple(tuple(float(v) for v in p) for p in pts),
+            band_half_width_m=float(half_width_m),
+        )
 
     def with_fence(self, min_m: ArrayLike | None, max_m: ArrayLike | None) -> ShieldConfig:
         """This filter with the box ``min_m`` .. ``max_m`` (world, m) where the vehicle's centre may
@@ -298,8 +342,9 @@ class PointMemory:
     def add(self, ids: ArrayLike, depth_input: ArrayLike, pos_world_m: ArrayLike, yaw_rad: ArrayLike) -> None:
         """Remember inputs (M, 32, 32) seen by vehicles ``ids`` (M,) at body position
         ``pos_world_m`` (M, 3) and heading ``yaw_rad`` (M,); the camera is ``camera_offset_m`` from
-        there. The oldest view is dropped, unless the camera is within ``min_travel_m`` of its
-        newest remembered view: then that one is replaced."""
+        there. The oldest view is dropped, unless the camera is within ``min_travel_m`` of a
+        remembered view: then the nearest such view is dropped (a vehicle going back and forth
+        between two places keeps both views and what it saw before them)."""
         ids = np.asarray(ids)
         pos = np.asarray(pos_world_m, dtype=np.float64)
         yaw = np.asarray(yaw_rad, dtype=np.float64)
@@ -309,11 +354,16 @@ class PointMemory:
         pts_w = body_to_world(view_points_heading(depth, self.cfg).astype(np.float64), yaw[:, None])
         pts_w += pos[:, None, :]
         k = points_per_view(self.cfg)
-        moved = ~(np.linalg.norm(pos - self.pose[ids, -1, :3], axis=-1) < self.cfg.min_travel_m)  # NaN: moved
         mem, dep, pose = self.points[ids], self.depth_m[ids], self.pose[ids]
-        mem[moved, :-k] = mem[moved, k:]
-        dep[moved, :-1] = dep[moved, 1:]
-        pose[moved, :-1] = pose[moved, 1:]
+        dist = np.linalg.norm(pos[:, None, :] - pose[..., :3], axis=-1)  # (M, K), NaN: empty slot
+        dist = np.where(np.isnan(dist), np.inf, dist)
+        near = dist.argmin(axis=-1)
+        drop = np.where(dist[np.arange(len(near)), near] < self.cfg.min_travel_m, near, 0)  # (M,)
+        for r in np.unique(drop):  # slots after the dropped one move down one
+            rows = drop == r
+            mem[rows, r * k : -k] = mem[rows, (r + 1) * k :]
+            dep[rows, r:-1] = dep[rows, r + 1 :]
+            pose[rows, r:-1] = pose[rows, r + 1 :]
         mem[:, -k:] = pts_w
         dep[:, -1] = depth * np.float32(self.cfg.max_range_m)
         pose[:, -1, :3] = pos
@@ -566,6 +616,22 @@ def fence_clearance(
     return np.minimum(s - lo, hi - s).min(axis=(-1, -2))
 
 
+def band_clearance(
+    samples_world_m: ArrayLike, waypoints_m: ArrayLike, half_width_m: float
+) -> NDArray[np.float64]:
+    """Least distance (m) from each primitive's samples (N, A, S, 3) to the edge of the band of
+    ``half_width_m`` round the polyline ``waypoints_m`` (W, 3) (world), measured inwards: negative
+    for a primitive with a sample outside (by how far); shape (N, A)."""
+    s = np.asarray(samples_world_m, dtype=np.float64)[..., None, :]  # (N, A, S, 1, 3)
+    w = np.asarray(waypoints_m, dtype=np.float64)
+    a, b = w[:-1], w[1:]
+    seg = b - a
+    len2 = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-12)
+    t = np.clip(np.einsum("...ij,ij->...i", s - a, seg) / len2, 0.0, 1.0)
+    dist = np.linalg.norm(s - (a + t[..., None] * seg), axis=-1).min(axis=-1)  # (N, A, S)
+    return half_width_m - dist.max(axis=-1)
+
+
 def shield_verdict(
     prims: PrimitiveSet,
     points_world_m: ArrayLike,
@@ -588,8 +654,9 @@ def shield_verdict(
     unknown; used with ``known_floor``); ``fence_min_m``/``fence_max_m`` ((3,) or (N, 3)) the known
     room of each vehicle (default: the config's ``fence_min_m``/``fence_max_m``; none: no room): a
     primitive whose samples come within ``fence_margin_m`` of its faces gets a clearance below
-    ``clearance_m`` (vetoed; the least bad keep the most room); the rest as in
-    :func:`primitive_samples`."""
+    ``clearance_m`` (vetoed; the least bad keep the most room), and so does one that comes within
+    ``band_margin_m`` of leaving the config's deviation band (``band_waypoints_m``,
+    ``band_half_width_m``); the rest as in :func:`primitive_samples`."""
     samples = primitive_samples(
         prims, start_world_m, start_vel_world_m_s, yaw_rad, cfg,
         pos_world_m=pos_world_m, vel_world_m_s=vel_world_m_s,
@@ -604,6 +671,9 @@ def shield_verdict(
     if fence_min_m is not None and fence_max_m is not None:
         inside = fence_clearance(samples, fence_min_m, fence_max_m)  # less than the margin: vetoed
         clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.fence_margin_m, 0.0))
+    if cfg.band_waypoints_m is not None and cfg.band_half_width_m is not None:
+        inside = band_clearance(samples, cfg.band_waypoints_m, cfg.band_half_width_m)
+        clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.band_margin_m, 0.0))
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)

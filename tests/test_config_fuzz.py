@@ -82,6 +82,9 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("shield.fence_max_m.*", "zero"): "a world coordinate (m)",
     ("shield.fence_max_m.*", "negative"): "a world coordinate (m)",
     ("shield.fence_margin_m", "zero"): "the predicted path may reach the geofence's faces",
+    ("shield.band_waypoints_m.*", "zero"): "a world coordinate (m)",
+    ("shield.band_waypoints_m.*", "negative"): "a world coordinate (m)",
+    ("shield.band_margin_m", "zero"): "the predicted path may reach the deviation band's edge",
     # reward constants: the paper's own include 0 and negative values
     ("reward.r_lower", "zero"): "the paper's R_l",
     ("reward.r_lower", "negative"): "a shaping penalty",
@@ -153,6 +156,8 @@ def _flight_base() -> dict[str, Any]:
     base["shield"]["seen_level_tol_m"] = 0.3  # an optional number: give it one to replace
     base["shield"]["fence_min_m"] = [-1.0, -1.0, -1.0]  # the optional fence: a box to perturb
     base["shield"]["fence_max_m"] = [5.0, 5.0, 5.0]
+    base["shield"]["band_waypoints_m"] = [[0.0, 0.0, 1.2], [2.0, 2.0, 1.2]]  # the optional band
+    base["shield"]["band_half_width_m"] = 1.5
     return base
 
 

@@ -53,6 +53,9 @@ def test_the_flight_config_dry_run_in_lab_env_2_ends_safe_and_its_record_shows_f
     assert recorded["primitives"]["scale_m"] == 0.5 and recorded["mission"]["max_steps"] == 30
     assert recorded["depth"]["kind"] == "socket" and recorded["vehicle"]["url"].startswith("udp")
     assert recorded["shield"]["fence_max_m"] is not None  # the filter flew knowing the room
+    # ... and the deviation limit round the path it flew (the record's rough path)
+    assert recorded["shield"]["band_half_width_m"] == cfg.safety.max_deviation_m
+    np.testing.assert_allclose(recorded["shield"]["band_waypoints_m"], rec.path_waypoints_m, atol=1e-5)
 
     # the geofence in the 3-D scene: its 12 edges span the config's box
     scene: dict[str, list[dict]] = defaultdict(list)

@@ -392,7 +392,9 @@ def room_aware_shield(
     room: the geofence as the box the vehicle's centre stays in
     (:meth:`~quadnav_onboard.shield.ShieldConfig.with_fence`) and, in a dry run, the world's walls
     ``room`` (lowest and highest corner inside them, m) as solid faces
-    (:meth:`~quadnav_onboard.shield.ShieldConfig.with_room`)."""
+    (:meth:`~quadnav_onboard.shield.ShieldConfig.with_room`). The deviation limit round the path
+    is added once the path flown is known (:meth:`~quadnav_onboard.shield.ShieldConfig.with_band`,
+    ``quadnav-onboard``)."""
     from quadnav_onboard.shield import shield_config_from_meta
 
     shield = cfg.shield if cfg.shield is not None else shield_config_from_meta(meta)

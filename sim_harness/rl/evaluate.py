@@ -125,6 +125,9 @@ class FlightLimits:
     """Lowest allowed height (world z, m)."""
     altitude_ceiling_m: float
     """Highest allowed height (world z, m)."""
+    max_deviation_m: float | None = None
+    """The flight's deviation limit (m from the rough path), a stop the filter keeps clear of as
+    known space (:meth:`~quadnav_onboard.shield.ShieldConfig.with_band`); None: not known to it."""
 
     def stop(self, pos_world_m: NDArray[np.float64]) -> NDArray[np.object_]:
         """Per position (N, 3): ``"geofence"``, ``"altitude"`` or None (inside both)."""
@@ -140,7 +143,8 @@ class FlightLimits:
 def known_room(shield: ShieldConfig, world: World, limits: FlightLimits | None = None) -> ShieldConfig:
     """``shield`` knowing ``world``'s room: its walls, floor and ceiling as solid faces
     (:meth:`~quadnav_onboard.shield.ShieldConfig.with_room`; a world without walls: its ceiling),
-    and the geofence of ``limits`` as the box the centre must stay in."""
+    the geofence of ``limits`` as the box the centre must stay in, and their deviation limit round
+    ``world``'s path as the band it must stay in (:meth:`~quadnav_onboard.shield.ShieldConfig.with_band`)."""
     big = WORLD_LIMIT_M
     room = world.room_box_m()
     if room is None and world.ceiling_z_m is not None:
@@ -150,6 +154,7 @@ def known_room(shield: ShieldConfig, world: World, limits: FlightLimits | None =
         shield = shield.with_room(*room)
     if limits is not None:
         shield = shield.with_fence(limits.geofence_min_m, limits.geofence_max_m)
+        shield = shield.with_band(world.path.waypoints_m, limits.max_deviation_m)
     return shield
 
 
@@ -187,7 +192,8 @@ def flight_eval_setup(
         )
         flown.append(dataclasses.replace(w, path=path))
     limits = FlightLimits(
-        tuple(s.geofence_min_m), tuple(s.geofence_max_m), s.altitude_floor_m, s.altitude_ceiling_m
+        tuple(s.geofence_min_m), tuple(s.geofence_max_m), s.altitude_floor_m, s.altitude_ceiling_m,
+        s.max_deviation_m,
     )
     return env_cfg, flown, limits
 
