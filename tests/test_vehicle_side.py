@@ -367,10 +367,9 @@ async def test_the_vehicle_side_in_processes_flies_the_row_the_single_process_wi
     world: Path, model: Path
 ) -> None:
     """Same world, start and model: the same stop, steps, crash and (within timing) distance and
-    reward, whether the sim's parts run in their own processes or in the daemon's. The total reward
-    is within one step's: measured in 5 pairs of flights, the two wirings' totals were 0.005-0.07
-    apart in 3 and 1.02-1.06 apart in 2 (the split wiring the higher), a one-step difference of a
-    reward that divides by the setpoint distance, whose cause is not yet known (CHANGELOG.md)."""
+    reward, whether the sim's parts run in their own processes or in the daemon's. The mission
+    starts from a settled hover in both (``START_SETTLED_SPEED_M_S``): measured in 5 pairs of
+    flights the totals were 0.003-0.047 apart; the bound catches a one-step difference (~1)."""
     from quadnav_onboard.daemon.dryrun import DryRun
 
     split, _ = await _fly(world, model, None)
@@ -380,5 +379,4 @@ async def test_the_vehicle_side_in_processes_flies_the_row_the_single_process_wi
     outcome = (split.stop_reason, split.steps, split.crashed)
     assert outcome == (single.stop_reason, single.steps, single.crashed)
     assert abs(split.navigation_distance_m - single.navigation_distance_m) < 0.05
-    one_step = _config().reward.r_upper / _config().reward.d_floor_m  # the most one step can earn
-    assert abs(split.total_reward - single.total_reward) < 0.6 * one_step
+    assert abs(split.total_reward - single.total_reward) < 0.25

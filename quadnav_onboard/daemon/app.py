@@ -463,6 +463,7 @@ class FlightDaemon:
         tasks.streamer.command(ramp)
         log.info("takeoff", ground_m=np.round(ground, 2).tolist(), start_m=self.path.start_m.tolist())
         deadline = time.monotonic() + cfg.takeoff_timeout_s
+        speed = _OdometrySpeed()
         while True:
             odom = tasks.odometry.latest.value
             assert odom is not None
@@ -472,7 +473,11 @@ class FlightDaemon:
             # "on the ground in the middle of the mission" as a crash.
             airborne = self.vehicle.state.landed is not True
             near = float(np.linalg.norm(odom.pos_world_m - self.path.start_m)) <= cfg.start_tolerance_m
-            if done and airborne and near:
+            # The mission starts from a hover at the start, as a training episode starts at rest:
+            # started while the climb still carries the vehicle up (or back down from the ramp's
+            # overshoot), its first steps' rewards depend on when the checks above happen to pass.
+            settled = speed.update(odom) <= START_SETTLED_SPEED_M_S
+            if done and airborne and near and settled:
                 return
             if time.monotonic() > deadline:
                 self.request_stop(
@@ -566,6 +571,32 @@ class FlightDaemon:
         record_px4_time(self.recorder, self.vehicle.state)
         self.recorder.close(reason.value, summary.to_dict())
         return summary
+
+
+START_SETTLED_SPEED_M_S = 0.2
+"""The mission starts once the odometry's speed (m/s) near the path start is at most this."""
+
+
+class _OdometrySpeed:
+    """The vehicle's speed (m/s) from the odometry's positions: the displacement between two
+    samples at least 20 ms apart over their arrival times (inf until there are two). The same
+    estimate whatever the source (some give no velocity)."""
+
+    def __init__(self) -> None:
+        self._prev: OdometrySample | None = None
+        self.speed_m_s = math.inf
+
+    def update(self, odom: OdometrySample) -> float:
+        prev = self._prev
+        if prev is None:
+            self._prev = odom
+            return self.speed_m_s
+        dt = odom.t_arrival_mono_s - prev.t_arrival_mono_s
+        if dt >= 0.02:
+            moved = np.asarray(odom.pos_world_m, dtype=np.float64) - np.asarray(prev.pos_world_m)
+            self.speed_m_s = float(np.linalg.norm(moved)) / dt
+            self._prev = odom
+        return self.speed_m_s
 
 
 def freeze_heap() -> None:
