@@ -546,3 +546,21 @@ async def test_a_vehicle_that_disarmed_during_the_hold_is_not_landed(forward_pol
     s = await rig.in_mission_then(lambda: asyncio.ensure_future(disarm_at_hold()), min_steps=2)
     assert s.stop_reason == "stale_depth", s
     assert rig.commands()[-1] == "hold"
+
+
+def test_odometry_speed_is_displacement_over_arrival_time_between_samples_20_ms_apart() -> None:
+    """The take-off's settle test reads the speed from positions alone (a mocap gives no
+    velocity): infinite until two samples, samples closer than 20 ms in time keep the last
+    estimate, and a vehicle at rest reads zero."""
+    from quadnav_onboard.daemon.app import OdometrySpeed
+    from quadnav_onboard.sources.base import OdometrySample
+
+    def at(t: float, x: float) -> OdometrySample:
+        return OdometrySample(np.array([x, 0.0, 1.0]), np.array([1.0, 0.0, 0.0, 0.0]), t)
+
+    speed = OdometrySpeed()
+    assert speed.update(at(0.0, 0.0)) == float("inf")
+    assert speed.update(at(0.01, 0.5)) == float("inf")  # 10 ms: too close to measure
+    assert speed.update(at(0.1, 0.05)) == pytest.approx(0.5)  # 5 cm in 0.1 s
+    assert speed.update(at(0.2, 0.05)) == pytest.approx(0.0)
+    assert speed.update(at(0.21, 9.0)) == pytest.approx(0.0)  # kept until 20 ms have passed

@@ -368,7 +368,7 @@ async def test_the_vehicle_side_in_processes_flies_the_row_the_single_process_wi
 ) -> None:
     """Same world, start and model: the same stop, steps, crash and (within timing) distance and
     reward, whether the sim's parts run in their own processes or in the daemon's. The mission
-    starts from a settled hover in both (``START_SETTLED_SPEED_M_S``): measured in 5 pairs of
+    starts from a settled hover in both (``mission.start_settled_speed_m_s``): measured in 5 pairs of
     flights the totals were 0.003-0.047 apart; the bound catches a one-step difference (~1)."""
     from quadnav_onboard.daemon.dryrun import DryRun
 

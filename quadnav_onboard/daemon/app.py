@@ -61,7 +61,7 @@ from quadnav_onboard.sources.base import DepthSource, OdometrySample, OdometrySo
 from quadnav_onboard.step import EpisodeLimits
 from quadnav_onboard.vehicle import Px4Setup, VehicleError, VehicleErrorKind, VehicleLink
 
-__all__ = ["FlightDaemon", "freeze_heap"]
+__all__ = ["FlightDaemon", "OdometrySpeed", "freeze_heap"]
 
 log = get_logger("quadnav.daemon")
 
@@ -463,7 +463,7 @@ class FlightDaemon:
         tasks.streamer.command(ramp)
         log.info("takeoff", ground_m=np.round(ground, 2).tolist(), start_m=self.path.start_m.tolist())
         deadline = time.monotonic() + cfg.takeoff_timeout_s
-        speed = _OdometrySpeed()
+        speed = OdometrySpeed()
         while True:
             odom = tasks.odometry.latest.value
             assert odom is not None
@@ -476,7 +476,7 @@ class FlightDaemon:
             # The mission starts from a hover at the start, as a training episode starts at rest:
             # started while the climb still carries the vehicle up (or back down from the ramp's
             # overshoot), its first steps' rewards depend on when the checks above happen to pass.
-            settled = speed.update(odom) <= START_SETTLED_SPEED_M_S
+            settled = speed.update(odom) <= cfg.start_settled_speed_m_s
             if done and airborne and near and settled:
                 return
             if time.monotonic() > deadline:
@@ -573,11 +573,7 @@ class FlightDaemon:
         return summary
 
 
-START_SETTLED_SPEED_M_S = 0.2
-"""The mission starts once the odometry's speed (m/s) near the path start is at most this."""
-
-
-class _OdometrySpeed:
+class OdometrySpeed:
     """The vehicle's speed (m/s) from the odometry's positions: the displacement between two
     samples at least 20 ms apart over their arrival times (inf until there are two). The same
     estimate whatever the source (some give no velocity)."""

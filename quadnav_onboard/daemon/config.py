@@ -77,6 +77,10 @@ class MissionConfig:
     """Speed (m/s) of the setpoint ramp from the ground to the path start, in (0, 3]."""
     start_tolerance_m: Annotated[float, pydantic.Field(gt=0, le=2)] = 0.3
     """The mission begins once the vehicle is this close (m) to the path start; in (0, 2]."""
+    start_settled_speed_m_s: Annotated[float, pydantic.Field(gt=0, le=3)] = 0.2
+    """... and moves no faster than this (m/s, from the odometry's positions), so the first step
+    starts from a hover as a training episode starts at rest, not mid-way through the climb's
+    overshoot; in (0, 3]."""
     takeoff_timeout_s: Annotated[float, pydantic.Field(gt=0, le=600)] = 60.0
     """Give up (safe abort) if the path start is not reached within this time (s); in (0, 600]."""
     land_at_goal: bool = True
