@@ -211,7 +211,6 @@ def _fly(
         room = DryRun(cfg, args.world).world.room_box_m()  # reads the world file only
     cfg = replace(cfg, shield=room_aware_shield(cfg, policy.checkpoint.meta, room))
     meta = {
-        "config": json.dumps(asdict(cfg), default=str),
         "model_path": str(model_path),
         "model_sha256": policy.checkpoint.sha256,
         "dry_run": str(bool(args.dry_run)),

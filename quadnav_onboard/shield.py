@@ -23,6 +23,7 @@ see :mod:`quadnav_onboard.preprocess`), row 0 up, column 0 left.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Annotated
@@ -35,6 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from quadnav_onboard.config import CONFIG_DICT, parse_config
 from quadnav_onboard.frames import body_to_world, pixel_slopes, world_to_body
 from quadnav_onboard.jit import CAN_CACHE, kernel_array
+from quadnav_onboard.path import RoughPath
 from quadnav_onboard.preprocess import OUT_SIZE
 from quadnav_onboard.primitives import PrimitiveSet, bezier_position, bezier_velocity
 
@@ -209,6 +211,7 @@ class ShieldConfig:
             finite = all(math.isfinite(v) for p in pts for v in p)
             if len(pts) < 2 or any(len(p) != 3 for p in pts) or not finite:
                 raise ValueError(f"band_waypoints_m must be >= 2 points of 3 finite numbers, got {pts!r}")
+            _band_path(pts)  # a path as the mission's: consecutive waypoints distinct
             if not 0 <= self.band_margin_m < half:
                 raise ValueError(
                     f"need 0 <= band_margin_m < band_half_width_m, got band_margin_m {self.band_margin_m!r} "
@@ -616,20 +619,21 @@ def fence_clearance(
     return np.minimum(s - lo, hi - s).min(axis=(-1, -2))
 
 
-def band_clearance(
-    samples_world_m: ArrayLike, waypoints_m: ArrayLike, half_width_m: float
-) -> NDArray[np.float64]:
+def band_clearance(samples_world_m: ArrayLike, path: RoughPath, half_width_m: float) -> NDArray[np.float64]:
     """Least distance (m) from each primitive's samples (N, A, S, 3) to the edge of the band of
-    ``half_width_m`` round the polyline ``waypoints_m`` (W, 3) (world), measured inwards: negative
-    for a primitive with a sample outside (by how far); shape (N, A)."""
-    s = np.asarray(samples_world_m, dtype=np.float64)[..., None, :]  # (N, A, S, 1, 3)
-    w = np.asarray(waypoints_m, dtype=np.float64)
-    a, b = w[:-1], w[1:]
-    seg = b - a
-    len2 = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-12)
-    t = np.clip(np.einsum("...ij,ij->...i", s - a, seg) / len2, 0.0, 1.0)
-    dist = np.linalg.norm(s - (a + t[..., None] * seg), axis=-1).min(axis=-1)  # (N, A, S)
-    return half_width_m - dist.max(axis=-1)
+    ``half_width_m`` round ``path`` (the distance the supervisor's deviation stop measures,
+    :meth:`~quadnav_onboard.path.RoughPath.deviation_m`), measured inwards: negative for a
+    primitive with a sample outside (by how far); shape (N, A)."""
+    return half_width_m - path.deviation_m(samples_world_m).max(axis=-1)
+
+
+@functools.lru_cache(maxsize=8)
+def _band_path(waypoints_m: tuple[tuple[float, float, float], ...]) -> RoughPath:
+    """The band's rough path, built once per filter config (its waypoints are a config value)."""
+    try:
+        return RoughPath(np.asarray(waypoints_m, dtype=np.float64))
+    except ValueError as exc:
+        raise ValueError(f"band_waypoints_m: {exc}") from None
 
 
 def shield_verdict(
@@ -672,7 +676,7 @@ def shield_verdict(
         inside = fence_clearance(samples, fence_min_m, fence_max_m)  # less than the margin: vetoed
         clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.fence_margin_m, 0.0))
     if cfg.band_waypoints_m is not None and cfg.band_half_width_m is not None:
-        inside = band_clearance(samples, cfg.band_waypoints_m, cfg.band_half_width_m)
+        inside = band_clearance(samples, _band_path(cfg.band_waypoints_m), cfg.band_half_width_m)
         clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.band_margin_m, 0.0))
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:

@@ -142,7 +142,6 @@ def test_the_flight_config_flies_lab_env_1_to_the_goal_and_a_tight_geofence_stop
     assert all(r.outcome in ("timeout", "deviation") and not r.crash for r in rows)
 
 
-
 def _filter_route_exists(
     world_name: str, deviation_limit: bool, spare_m: float, step_m: float = 0.01
 ) -> bool:

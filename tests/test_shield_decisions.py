@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from quadnav_onboard.path import RoughPath
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
 from quadnav_onboard.shield import PointMemory, ShieldConfig, band_clearance, shield_verdict
 
@@ -28,7 +29,7 @@ def test_band_clearance_is_the_room_left_inside_the_band_round_a_polyline():
     the nearest segment counts, and a primitive's worst sample is its clearance."""
     corner = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 2.0, 0.0]])
     samples = np.array([[[[1.0, 0.5, 0.0], [2.5, 1.0, 0.0]], [[1.0, 0.5, 0.0], [1.0, -1.2, 0.0]]]])
-    got = band_clearance(samples, corner, 1.0)
+    got = band_clearance(samples, RoughPath(corner), 1.0)
     assert got.shape == (1, 2)
     np.testing.assert_allclose(got[0], [0.5, -0.2])
 
@@ -62,6 +63,7 @@ def test_with_band_sets_the_path_and_half_width_and_none_leaves_the_filter_as_it
         ({"band_waypoints_m": ALONG_X}, "both"),
         ({"band_half_width_m": 1.0}, "both"),
         ({"band_waypoints_m": ALONG_X[:1], "band_half_width_m": 1.0}, ">= 2 points"),
+        ({"band_waypoints_m": (ALONG_X[0], ALONG_X[0], ALONG_X[1]), "band_half_width_m": 1.0}, "distinct"),
         ({"band_waypoints_m": ALONG_X, "band_half_width_m": 0.1, "band_margin_m": 0.2}, "band_margin_m"),
     ],
 )
@@ -107,4 +109,3 @@ def test_going_back_and_forth_between_two_places_does_not_forget_what_was_seen_b
     for x in (2.0, 2.5):  # new places (seeing x = 4, 4.5): the oldest, the origin's view, goes first
         mem.add([0], _wall(2.0, cfg), np.array([[x, 0.0, 0.0]]), np.zeros(1))
     assert 5.0 not in _remembered_x(mem)
-
