@@ -172,14 +172,20 @@ async def test_only_frames_near_a_step_boundary_are_prepared(forward_policy: Pol
     next step are only checked; every decision still finds its frame (prepared or prepared in the
     step). null: every frame is prepared, none only checked."""
     rig = Rig(forward_policy, slow_step_config(window_s), path=SLOW_PATH)
-    s = await asyncio.wait_for(rig.daemon.run(), 20)
+    before: dict[str, int] = {}  # the take-off's frames (all prepared: no step boundary is due)
+
+    def at_mission_start() -> None:
+        before["prepared"] = rig.daemon.stats.depth_frames_prepared
+
+    s = await rig.in_mission_then(at_mission_start)
     assert s.stop_reason == "step_limit" and sum(s.decision_paths.values()) == s.steps == 3
     frames = s.depth_frames
     assert frames["prepared"] + frames["checked"] <= frames["received"] + s.steps
     if window_s is None:
         assert frames["checked"] == 0 and frames["prepared"] >= s.steps
     else:  # 1-s steps at 30 fps: about 3 of every 30 frames in the mission are prepared
-        assert frames["checked"] > 2 * frames["prepared"] > 0
+        in_mission = frames["prepared"] - before["prepared"]
+        assert frames["checked"] > 2 * in_mission > 0, (frames, before)
 
 
 async def test_a_bad_frame_early_in_a_step_stops_the_flight_before_the_next_step(
@@ -564,3 +570,53 @@ def test_odometry_speed_is_displacement_over_arrival_time_between_samples_20_ms_
     assert speed.update(at(0.1, 0.05)) == pytest.approx(0.5)  # 5 cm in 0.1 s
     assert speed.update(at(0.2, 0.05)) == pytest.approx(0.0)
     assert speed.update(at(0.21, 9.0)) == pytest.approx(0.0)  # kept until 20 ms have passed
+
+
+def test_odometry_speed_counts_how_long_the_vehicle_has_stayed_slow() -> None:
+    """Settled means slow for a while, not slow at one sample pair: a swing reads slow at its
+    turns, and one fast estimate starts the count again."""
+    from quadnav_onboard.daemon.app import OdometrySpeed
+    from quadnav_onboard.sources.base import OdometrySample
+
+    def at(t: float, x: float) -> OdometrySample:
+        return OdometrySample(np.array([x, 0.0, 1.0]), np.array([1.0, 0.0, 0.0, 0.0]), t)
+
+    speed = OdometrySpeed()
+    assert speed.slow_for(at(0.0, 0.0), 0.2) == 0.0  # no estimate yet
+    assert speed.slow_for(at(0.1, 0.0), 0.2) == 0.0  # slow from here
+    assert speed.slow_for(at(0.4, 0.01), 0.2) == pytest.approx(0.3)
+    assert speed.slow_for(at(0.5, 0.1), 0.2) == 0.0  # 0.9 m/s
+    assert speed.slow_for(at(0.6, 0.1), 0.2) == 0.0
+    assert speed.slow_for(at(0.7, 0.1), 0.2) == pytest.approx(0.1)
+
+
+def bobbing(rig: Rig, amplitude_m: float, hz: float) -> None:
+    """The vehicle's reported position swings up and down about the fake's once it has climbed."""
+    t0 = time.monotonic()
+
+    def pose() -> np.ndarray:
+        pos = rig.vehicle.pos_world_m.copy()
+        if pos[2] > 0.5:
+            pos[2] += amplitude_m * np.sin(2 * np.pi * hz * (time.monotonic() - t0))
+        return pos
+
+    rig.odom.pose_fn = pose
+
+
+async def test_a_vehicle_swinging_about_the_start_does_not_start_the_mission(forward_policy: Policy) -> None:
+    """A 5 cm, 3 Hz swing reads slow at each turn (every 0.17 s), but never stays slow for
+    ``start_settled_for_s``: the take-off times out rather than start mid-swing."""
+    rig = Rig(forward_policy, fast_config(takeoff_timeout_s=2.0))
+    bobbing(rig, 0.05, 3.0)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.stop_reason == "takeoff_timeout", s
+    assert s.steps == 0
+
+
+async def test_the_same_swing_starts_when_the_speed_limit_allows_it(forward_policy: Policy) -> None:
+    """The control for the test above: with the limit above the swing's 0.94 m/s peak the same
+    rig flies (the timeout there is the settle rule's, not the rig's)."""
+    rig = Rig(forward_policy, fast_config(takeoff_timeout_s=2.0, start_settled_speed_m_s=3.0))
+    bobbing(rig, 0.05, 3.0)
+    s = await asyncio.wait_for(rig.daemon.run(), 15)
+    assert s.steps >= 1, s

@@ -476,7 +476,7 @@ class FlightDaemon:
             # The mission starts from a hover at the start, as a training episode starts at rest:
             # started while the climb still carries the vehicle up (or back down from the ramp's
             # overshoot), its first steps' rewards depend on when the checks above happen to pass.
-            settled = speed.update(odom) <= cfg.start_settled_speed_m_s
+            settled = speed.slow_for(odom, cfg.start_settled_speed_m_s) >= cfg.start_settled_for_s
             if done and airborne and near and settled:
                 return
             if time.monotonic() > deadline:
@@ -581,6 +581,19 @@ class OdometrySpeed:
     def __init__(self) -> None:
         self._prev: OdometrySample | None = None
         self.speed_m_s = math.inf
+        self._slow_since_s: float | None = None
+
+    def slow_for(self, odom: OdometrySample, limit_m_s: float) -> float:
+        """Update with ``odom``; how long (s, arrival time) every estimate has been at most
+        ``limit_m_s`` (0 while the newest is above it). A vehicle swinging about a point reads
+        slow at each turn: it is settled only when it stays slow."""
+        speed = self.update(odom)
+        if speed > limit_m_s:
+            self._slow_since_s = None
+            return 0.0
+        if self._slow_since_s is None:
+            self._slow_since_s = odom.t_arrival_mono_s
+        return odom.t_arrival_mono_s - self._slow_since_s
 
     def update(self, odom: OdometrySample) -> float:
         prev = self._prev

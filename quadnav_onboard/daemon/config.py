@@ -81,6 +81,9 @@ class MissionConfig:
     """... and moves no faster than this (m/s, from the odometry's positions), so the first step
     starts from a hover as a training episode starts at rest, not mid-way through the climb's
     overshoot; in (0, 3]."""
+    start_settled_for_s: Annotated[float, pydantic.Field(ge=0.05, le=10)] = 0.3
+    """... and has stayed that slow for this long (s), so that a vehicle swinging about the start
+    (slow only at each turn) does not pass for one at rest; in [0.05, 10]."""
     takeoff_timeout_s: Annotated[float, pydantic.Field(gt=0, le=600)] = 60.0
     """Give up (safe abort) if the path start is not reached within this time (s); in (0, 600]."""
     land_at_goal: bool = True
