@@ -115,6 +115,7 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.sim_threads", "zero"): "numba's default thread count",
     ("train.dagger_iterations", "zero"): "no imitation (the paper)",
     ("train.dagger_beta", "zero"): "the network flies every step after iteration 0",
+    ("train.dagger_filtered_share", "zero"): "the network flies alone in every DAgger env",
 }
 """Values (key pattern, value kind) a numeric field means something by: each is accepted by the
 field's own range; a check across fields (a geofence corner above its opposite, a ceiling below

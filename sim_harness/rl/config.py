@@ -166,6 +166,19 @@ class TrainConfig:
     imitation_only: bool = False
     """With ``dagger_iterations`` > 0: stop after the imitation (no RL episodes; ``episodes``
     is then unused)."""
+    imitation_teacher: str = "privileged"
+    """Who labels DAgger's states: "privileged" (sim_harness.rl.teacher: a search over the
+    primitives against the true world; cross-entropy on its soft targets) or "filter"
+    (sim_harness.rl.filter_teacher: the ``init_model`` network, frozen, behind the depth safety
+    filter; the student regresses its Q-values onto the expert's with the vetoed primitives pushed
+    ``filter_veto_margin`` below the allowed ones; needs ``init_model`` and ``shield``)."""
+    filter_veto_margin: Annotated[float, pydantic.Field(gt=0, le=100)] = 1.0
+    """With the "filter" teacher: how far (in Q) below the lowest allowed primitive a vetoed one is
+    labelled. Range: (0, 100]."""
+    dagger_filtered_share: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
+    """Share of DAgger's envs in which the network flies behind the depth safety filter (as the
+    product does) when it is the one flying; the rest fly it alone. Needs ``shield`` when > 0.
+    Range: [0, 1]."""
     teacher_lookahead: Annotated[int, pydantic.Field(ge=1, le=2)] = 2
     """Primitives the teacher flies from a state: 1, or 2 (the second only to find dead ends).
     Range: [1, 2]."""
@@ -218,6 +231,22 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'procedural_families': bad value {list(cfg.procedural_families)!r}: "
             f"families are {', '.join(FAMILIES)}"
+        )
+    if cfg.imitation_teacher not in ("privileged", "filter"):
+        raise ConfigError(
+            f"{source}: key 'imitation_teacher': bad value {cfg.imitation_teacher!r}: "
+            "teachers are privileged, filter"
+        )
+    needs = cfg.imitation_teacher == "filter" and cfg.dagger_iterations > 0
+    if needs and not (cfg.init_model and cfg.shield):
+        raise ConfigError(
+            f"{source}: key 'imitation_teacher': bad value 'filter': the filter teacher is the "
+            "init_model network behind the filter: set init_model and shield: true"
+        )
+    if cfg.dagger_filtered_share > 0 and not cfg.shield:
+        raise ConfigError(
+            f"{source}: key 'dagger_filtered_share': bad value {cfg.dagger_filtered_share!r}: "
+            "flying behind the filter needs shield: true"
         )
     if cfg.device != "cpu":
         import torch

@@ -1,16 +1,20 @@
-"""Imitation of the privileged teacher with DAgger (before, or instead of, the RL episodes).
+"""Imitation of a teacher with DAgger (before, or instead of, the RL episodes).
 
 Iteration ``i`` (0, 1, ...) of :func:`dagger`:
 
 1. **Roll out** ``dagger_episodes`` episodes per primitive scale in ``imitation_scales``; at each
    step every running env takes the teacher's primitive with probability ``dagger_beta ** i``
    (iteration 0: the teacher alone), else the network's greedy one (Ross et al. 2011).
-2. **Label** every visited state with the teacher's costs of all primitives
-   (:class:`sim_harness.rl.teacher.Teacher`) as a soft target (:func:`~sim_harness.rl.teacher.soft_targets`,
-   ``imitation_temperature_m``), whoever flew it, and **aggregate** it into one dataset
-   (:class:`Aggregate`: every iteration's states are kept, up to ``imitation_buffer``).
-3. **Fit** the network's Q-values, as logits, to the aggregate by cross-entropy
-   (``imitation_epochs`` passes, minibatches of ``batch_size``, Adam at ``imitation_lr``).
+2. **Label** every visited state, whoever flew it, and **aggregate** it into one dataset
+   (:class:`Aggregate`: every iteration's states are kept, up to ``imitation_buffer``). The
+   teacher (a :class:`Labeller`) is either the privileged one
+   (:class:`sim_harness.rl.teacher.Teacher`: its costs of all primitives against the true world as
+   a soft target, ``imitation_temperature_m``) or the product itself
+   (:class:`sim_harness.rl.filter_teacher.FilterTeacher`: a frozen network behind the depth safety
+   filter; its Q-values with the vetoed primitives pushed down).
+3. **Fit** the network to the aggregate (``imitation_epochs`` passes, minibatches of
+   ``batch_size``, Adam at ``imitation_lr``): its Q-values as logits by cross-entropy to soft
+   targets, or its Q-values to Q labels by the Huber loss (the teacher's ``loss``).
 
 The network is the one the RL loop and the daemon use, unchanged: the greedy action is the
 arg-max of the same 18 outputs, and the order of the others is the teacher's, which is what the
@@ -22,6 +26,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import structlog
@@ -31,10 +36,9 @@ from numpy.typing import NDArray
 
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
-from sim_harness.rl.teacher import Teacher, soft_targets
 from sim_harness.world import World
 
-__all__ = ["Aggregate", "DaggerSettings", "collect", "dagger", "fit"]
+__all__ = ["Aggregate", "DaggerSettings", "Labeller", "collect", "dagger", "fit"]
 
 log = structlog.get_logger(__name__)
 
@@ -52,6 +56,7 @@ class DaggerSettings:
     batch_size: int
     buffer: int
     seed: int
+    filtered_share: float = 0.0
 
 
 class Aggregate:
@@ -89,9 +94,19 @@ class Aggregate:
         self.size = min(self.capacity, self.size + n)
 
 
+class Labeller(Protocol):
+    """A teacher: labels for every env's current state, and the actions it would fly there."""
+
+    loss: str
+    """"cross_entropy" (labels are distributions) or "huber" (labels are Q-values)."""
+
+    def label(self, env: VecQuadNavEnv, depth: NDArray, rel: NDArray, temperature_m: float
+              ) -> tuple[NDArray[np.float32], NDArray[np.int64]]: ...
+
+
 def collect(
     env: VecQuadNavEnv,
-    teacher: Teacher,
+    teacher: Labeller,
     agent: DQNAgent,
     episodes: int,
     beta: float,
@@ -99,21 +114,24 @@ def collect(
     temperature_m: float,
     data: Aggregate,
     iteration: int,
+    filtered_share: float = 0.0,
 ) -> dict[str, int]:
     """Fly ``episodes`` episodes in ``env`` (auto-reset) with the β-mixture of teacher and network,
-    adding every visited state with the teacher's soft target to ``data``; returns the outcome
-    counts of the episodes (those the network flew alone when β = 0)."""
+    adding every visited state with the teacher's label to ``data``; returns the outcome counts of
+    the episodes (those the network flew when β = 0). The first ``filtered_share`` of the envs fly
+    the network behind the env's filter (its ``allowed``), as the product does; the rest alone."""
+    filtered = np.arange(env.n_envs) < round(filtered_share * env.n_envs)
     counts: dict[str, int] = {}
     finished = 0
     depth, rel = env.depth, env.rel
     while finished < episodes:
-        costs = teacher.action_costs(env, np.arange(env.n_envs))
-        data.add(depth, rel, soft_targets(costs, temperature_m), iteration)
-        actions = np.argmin(costs, axis=1)
+        target, actions = teacher.label(env, depth, rel, temperature_m)
+        data.add(depth, rel, target, iteration)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
             if own.any():
-                actions[own] = agent.greedy(depth[own], rel[own])
+                alone = np.where(filtered[:, None], env.allowed, True)
+                actions[own] = agent.greedy(depth[own], rel[own], alone[own])
         depth, rel, _, term, trunc, info = env.step(actions)
         for i in np.flatnonzero(term | trunc):
             if finished < episodes:
@@ -124,10 +142,13 @@ def collect(
 
 
 def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
-        optimizer: torch.optim.Optimizer) -> tuple[float, float]:
-    """``epochs`` passes (fractions allowed) of cross-entropy between softmax(Q) and the targets;
+        optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy") -> tuple[float, float]:
+    """``epochs`` passes (fractions allowed) of cross-entropy between softmax(Q) and the targets
+    (``loss_kind`` "cross_entropy"), or of the Huber loss between Q and the targets ("huber");
     returns the mean loss and the share of the last tenth's samples whose arg-max Q is the
     teacher's first choice. The target network is set to the result."""
+    if loss_kind not in ("cross_entropy", "huber"):
+        raise ValueError(f"loss_kind must be 'cross_entropy' or 'huber', got {loss_kind!r}")
     n_batches = max(1, round(epochs * len(data) / batch_size))
     losses: list[float] = []
     agree: list[float] = []
@@ -138,7 +159,10 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
         rel = agent._t(data.rel[idx])
         target = agent._t(data.target[idx])
         q = agent.q(depth, rel)
-        loss = -(target * F.log_softmax(q, dim=1)).sum(dim=1).mean()
+        if loss_kind == "huber":
+            loss = F.smooth_l1_loss(q, target)
+        else:
+            loss = -(target * F.log_softmax(q, dim=1)).sum(dim=1).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(agent.q.parameters(), 10.0)
@@ -153,7 +177,7 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
 def dagger(
     agent: DQNAgent,
     scaled: Sequence[tuple[EnvConfig, Sequence[World]]],
-    teacher: Teacher,
+    teacher: Labeller,
     settings: DaggerSettings,
     n_envs: int,
 ) -> list[dict]:
@@ -178,12 +202,13 @@ def dagger(
         beta = s.beta**it
         agent.q.eval()
         for env, (cfg, _) in zip(envs, scaled, strict=True):
-            counts = collect(env, teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it)
+            counts = collect(env, teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
+                             s.filtered_share)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": cfg.primitives.scale_m,
                 "outcomes": counts, "dataset": len(data),
             })
-        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer)
+        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, teacher.loss)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["wall_s"] = round(time.monotonic() - t0, 2)

@@ -198,9 +198,18 @@ class Teacher:
     list is fixed) and shared between envs over the same worlds at any primitive scale.
     """
 
+    loss = "cross_entropy"
+    """How the student fits the labels (:func:`sim_harness.rl.imitation.fit`)."""
+
     def __init__(self, config: TeacherConfig = TeacherConfig()) -> None:
         self.config = config
         self._fields: dict[tuple[int, float], CostField] = {}
+
+    def label(self, env, depth: NDArray, rel: NDArray, temperature_m: float
+              ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+        """(soft targets (N, A), the teacher's actions (N,)) for every env of ``env``."""
+        costs = self.action_costs(env, np.arange(env.n_envs))
+        return soft_targets(costs, temperature_m), np.argmin(costs, axis=1)
 
     def field(self, world: World, radius_m: float) -> CostField:
         key = (id(world.geometry), float(radius_m))

@@ -38,7 +38,8 @@ from sim_harness.procgen import procedural_worlds
 from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
 from sim_harness.rl.evaluate import evaluate, scores
-from sim_harness.rl.imitation import DaggerSettings, dagger
+from sim_harness.rl.filter_teacher import FilterTeacher
+from sim_harness.rl.imitation import DaggerSettings, Labeller, dagger
 from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
 from sim_harness.rl.runlog import (
     git_commit,
@@ -199,11 +200,16 @@ def _evaluator(
 
 def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World],
             run_dir: Path) -> list[dict[str, Any]]:
-    """DAgger from the privileged teacher (``dagger_*``, ``imitation_*``, ``teacher_*`` fields) on
-    ``agent``; writes ``dagger.json`` and ``checkpoints/imitation.pt`` in ``run_dir``."""
-    teacher = Teacher(TeacherConfig(
-        grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead
-    ))
+    """DAgger from the ``imitation_teacher`` (``dagger_*``, ``imitation_*``, ``teacher_*``,
+    ``filter_*`` fields) on ``agent``, which holds ``init_model``'s weights when one is given (the
+    filter teacher's expert); writes ``dagger.json`` and ``checkpoints/imitation.pt`` in ``run_dir``."""
+    teacher: Labeller
+    if cfg.imitation_teacher == "filter":
+        teacher = FilterTeacher(agent.q, cfg.filter_veto_margin, device=cfg.device)
+    else:
+        teacher = Teacher(TeacherConfig(
+            grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead
+        ))
     scaled = [
         at_primitive_scale(env_cfg, worlds, s) if s != REFERENCE_SCALE_M else (env_cfg, list(worlds))
         for s in cfg.imitation_scales
@@ -212,6 +218,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         iterations=cfg.dagger_iterations, episodes=cfg.dagger_episodes, beta=cfg.dagger_beta,
         epochs=cfg.imitation_epochs, lr=cfg.imitation_lr, temperature_m=cfg.imitation_temperature_m,
         batch_size=cfg.batch_size, buffer=cfg.imitation_buffer, seed=cfg.seed,
+        filtered_share=cfg.dagger_filtered_share,
     )
     records = dagger(agent, scaled, teacher, settings, cfg.n_envs)
     (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
