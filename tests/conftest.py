@@ -37,3 +37,16 @@ def forward_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("m") / "fwd.pt"
     constant_action_checkpoint(str(path), FORWARD)
     return path
+
+
+@pytest.fixture
+def one_torch_thread():
+    """torch held to one thread for the test: two OpenMP threads on a shared 2-core machine are
+    many times slower than one. Modules that train use it for every test
+    (``pytestmark = pytest.mark.usefixtures("one_torch_thread")``)."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

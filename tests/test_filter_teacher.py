@@ -26,12 +26,7 @@ from sim_harness.world import parse_world
 FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_veto_targets_put_every_vetoed_primitive_below_the_allowed_ones() -> None:

@@ -23,12 +23,7 @@ HOVER = DEFAULT_DIRECTIONS.index((0, 0, 0))
 FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _world():

@@ -11,14 +11,7 @@ from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
 from sim_harness.rl.schedules import LinearSchedule, linear_schedule
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Two OpenMP threads on a shared 2-core machine are many times slower than one."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.mark.parametrize(("start", "end"), [(1.0, 0.1), (0.01, 0.99)])

@@ -18,13 +18,7 @@ from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_gree
 from sim_harness.rl.train import train
 from sim_harness.world import load_world, paper_world_path
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _tiny(tmp_path, **kw) -> TrainConfig:
