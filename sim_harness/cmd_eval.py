@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from sim_harness.rl.evaluate import FlightLimits
     from sim_harness.world import World
 
-__all__ = ["add_flight_flags", "add_parser", "at_flight_scale", "run", "shield_from_flags"]
+__all__ = ["add_flight_flags", "add_parser", "at_flight_scale", "flight_setup", "run", "shield_from_flags"]
 
 
 def shield_from_flags(policy: Policy, args: argparse.Namespace) -> ShieldConfig:
@@ -45,7 +45,7 @@ def at_flight_scale(
     return at_primitive_scale(env_cfg, worlds, scale, max_steps)
 
 
-def _flight_setup(
+def flight_setup(
     policy: Policy, args: argparse.Namespace, worlds: list[World], paths: list[Path | str]
 ) -> tuple[EnvConfig, list[World], FlightLimits]:
     """``--flight-config``: the flight's mission in ``worlds`` (each checked against the config as
@@ -237,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
             worlds = [load_world(p) for p in paths]
         limits = None
         if args.flight_config:
-            env_cfg, worlds, limits = _flight_setup(policy, args, worlds, paths)
+            env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
         else:
             shield = shield_from_flags(policy, args)
             jitter = 0.5 if args.start_jitter_m is None else args.start_jitter_m

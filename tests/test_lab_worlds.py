@@ -3,6 +3,7 @@ the eval with its geofence and altitude band as stop conditions, and the room kn
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from quadnav_onboard.shield import ShieldConfig
 from sim_harness.collision import clearance_m
 from sim_harness.render import render_inputs
 from sim_harness.rl.evaluate import FlightLimits, evaluate, flight_eval_setup, known_room
+from sim_harness.route import route_report
 from sim_harness.world import WorldError, load_world, parse_world, resolve_world_arg, world_to_mapping
 
 REPO = Path(__file__).resolve().parents[1]
@@ -142,54 +144,33 @@ def test_the_flight_config_flies_lab_env_1_to_the_goal_and_a_tight_geofence_stop
     assert all(r.outcome in ("timeout", "deviation") and not r.crash for r in rows)
 
 
-def _filter_route_exists(
-    world_name: str, deviation_limit: bool, spare_m: float, step_m: float = 0.01
-) -> bool:
-    """Whether the vehicle's centre can move at the path's height, in any way at all (not only by
-    primitives), from the path's start to within the goal radius of its end while keeping, with
-    ``spare_m`` to spare, what the lab flight's filter keeps: ``clearance_m`` from every solid,
-    ``fence_margin_m`` inside the known room (walls and geofence, :func:`known_room`) and, with
-    ``deviation_limit``, ``band_margin_m`` inside the deviation limit. A flood fill over a grid of
-    ``step_m``."""
+def _route(world_name: str, deviation_limit: bool, ceiling_m: float | None = None):
+    """The product's route check (:mod:`sim_harness.route`) of a lab under config/flight.yaml, its
+    filter as the shipped model flies it there, with or without the deviation limit, under the
+    flight's altitude ceiling or ``ceiling_m``."""
     flight = load_flight_config(FLIGHT)
     s = flight.safety
-    world = load_world(resolve_world_arg(world_name))
-    limits = FlightLimits(tuple(s.geofence_min_m), tuple(s.geofence_max_m), s.altitude_floor_m,
-                          s.altitude_ceiling_m, s.max_deviation_m if deviation_limit else None)
-    sh = known_room(ShieldConfig(enabled=True), world, limits)  # the shipped model's 0.5 m, 0.1 m
-    lo = np.asarray(sh.fence_min_m[:2]) + sh.fence_margin_m + spare_m
-    hi = np.asarray(sh.fence_max_m[:2]) - sh.fence_margin_m - spare_m
-    xs, ys = (np.arange(a, b + 1e-9, step_m) for a, b in zip(lo, hi, strict=True))
-    gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    pts = np.stack([gx, gy, np.full_like(gx, world.path.start_m[2])], axis=-1).reshape(-1, 3)
-    free = clearance_m(world, pts) >= sh.clearance_m + spare_m
-    if deviation_limit:
-        free &= world.path.deviation_m(pts) <= s.max_deviation_m - sh.band_margin_m - spare_m
-    free = free.reshape(gx.shape)
-    dist = np.linalg.norm(pts.reshape(*gx.shape, 3)[..., None, :] - np.stack([world.path.start_m,
-                          world.path.goal_m]), axis=-1)
-    reach = free & (dist[..., 0] <= 0.05)
-    goal = dist[..., 1] <= flight.mission.goal_radius_m
-    while True:
-        grown = reach.copy()
-        grown[1:] |= reach[:-1]
-        grown[:-1] |= reach[1:]
-        grown[:, 1:] |= reach[:, :-1]
-        grown[:, :-1] |= reach[:, 1:]
-        grown &= free
-        if (grown == reach).all():
-            return bool((reach & goal).any())
-        reach = grown
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    env_cfg, worlds, limits = flight_eval_setup(policy, flight, [load_world(resolve_world_arg(world_name))])
+    if not deviation_limit:
+        limits = dataclasses.replace(limits, max_deviation_m=None)
+    shield = known_room(env_cfg.shield, worlds[0], limits)
+    altitude = (s.altitude_floor_m, s.altitude_ceiling_m if ceiling_m is None else ceiling_m)
+    return route_report(worlds[0], shield, flight.mission.goal_radius_m, altitude)
 
 
 def test_lab_env_2_as_chosen_has_no_way_round_its_boxes_that_keeps_the_filters_clearances():
-    """The free lab has a route with 0.2 m to spare; the two-box lab has none with 2 cm to spare
-    for a vehicle that keeps 0.5 m from the boxes and 0.1 m inside the known room, with or without
-    the 1.5 m deviation limit, and the boxes are too tall to fly over inside the altitude band
-    (docs/worlds.md, "Lab Env 2 as chosen"): the planner cannot be what fails there."""
-    assert _filter_route_exists("lab01", deviation_limit=True, spare_m=0.2)
-    assert not _filter_route_exists("lab02", deviation_limit=True, spare_m=0.02)
-    assert not _filter_route_exists("lab02", deviation_limit=False, spare_m=0.02)
+    """The free lab has a route with 0.2 m to spare; the two-box lab none for a vehicle that keeps
+    0.5 m from the boxes, 0.1 m inside the known room and inside the 1.5 m deviation limit, and the
+    boxes are too tall to fly over inside the altitude band (docs/worlds.md, "Lab Env 2 as
+    chosen"): the planner cannot be what fails there. Without the deviation limit a route opens
+    only near the boxes' tops, where their edges are farther than their sides."""
+    free = _route("lab01", deviation_limit=True)
+    assert free.route and free.spare_m >= 0.2
+    boxes = _route("lab02", deviation_limit=True)
+    assert not boxes.route and boxes.start_ok and set(boxes.closed_by) == {"clearance", "deviation"}
+    assert _route("lab02", deviation_limit=False).route
+    assert not _route("lab02", deviation_limit=False, ceiling_m=2.0).route
     flight = load_flight_config(FLIGHT)
     tops = [o.center_m[2] + o.size_m[2] / 2 for o in load_world(resolve_world_arg("lab02")).obstacles]
     assert min(tops) + ShieldConfig().clearance_m > flight.safety.altitude_ceiling_m

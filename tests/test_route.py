@@ -1,0 +1,72 @@
+"""The route check: does a world leave a way from start to goal that keeps the filter's margins?"""
+
+from __future__ import annotations
+
+import pytest
+
+from quadnav_onboard.shield import ShieldConfig
+from sim_harness.cli import main
+from sim_harness.route import route_report
+from sim_harness.world import parse_world
+
+FILTER = ShieldConfig(enabled=True)  # clearance 0.5 m
+
+
+def _wall_with_gap(gap_m: float, gap_y_m: float = 0.0) -> dict:
+    """A 4 m path along x through a full-height wall at x = 2 with one gap of ``gap_m`` at y."""
+    lo, hi = gap_y_m - gap_m / 2, gap_y_m + gap_m / 2
+    return {
+        "name": f"gap{gap_m}",
+        "path": {"waypoints": [[0, 0, 1.0], [4, 0, 1.0]]},
+        "bounds": {"floor_z": 0.0, "ceiling_z": 2.0},
+        "obstacles": [
+            {"type": "box", "center": [2.0, (lo - 6.0) / 2, 1.0], "size": [0.2, 6.0 + lo, 2.0]},
+            {"type": "box", "center": [2.0, (hi + 6.0) / 2, 1.0], "size": [0.2, 6.0 - hi, 2.0]},
+        ],
+    }
+
+
+def test_a_gap_wider_than_twice_the_clearance_is_a_route_with_the_difference_to_spare():
+    world = parse_world(_wall_with_gap(1.4), "t")
+    r = route_report(world, FILTER, goal_radius_m=0.5, grid_m=0.02)
+    assert r.route and r.start_ok and r.closed_by == ()
+    assert r.spare_m == pytest.approx(0.7 - 0.5, abs=0.03)  # half the gap less the clearance
+
+
+def test_a_narrower_gap_is_no_route_and_the_clearance_is_what_closes_it():
+    world = parse_world(_wall_with_gap(0.9), "t")
+    r = route_report(world, FILTER, goal_radius_m=0.5, grid_m=0.02)
+    assert not r.route and r.spare_m == 0.0 and r.closed_by == ("clearance",)
+    assert route_report(world, ShieldConfig(enabled=True, clearance_m=0.4), 0.5, grid_m=0.02).route
+
+
+def test_a_gap_outside_the_deviation_band_is_closed_by_the_band():
+    world = parse_world(_wall_with_gap(1.4, gap_y_m=1.8), "t")
+    assert route_report(world, FILTER, 0.5, grid_m=0.02).route
+    banded = FILTER.with_band(world.path.waypoints_m, 1.0)
+    r = route_report(world, banded, 0.5, grid_m=0.02)
+    assert not r.route and r.closed_by == ("deviation",)
+
+
+def test_a_start_that_breaks_a_margin_is_said_and_a_bad_grid_is_refused():
+    world = parse_world(_wall_with_gap(1.4), "t")
+    low = route_report(world, FILTER, 0.5, altitude_m=(1.2, 2.0), grid_m=0.02)  # the start is at 1 m
+    assert not low.route and not low.start_ok and "start itself" in low.describe()
+    with pytest.raises(ValueError, match="grid_m"):
+        route_report(world, FILTER, 0.5, grid_m=float("nan"))
+
+
+def test_the_cli_checks_the_labs_under_the_flight_config(tmp_path, capsys):
+    """End to end: ``quadnav-sim route`` on the shipped labs under config/flight.yaml."""
+    import json
+
+    out = tmp_path / "route.json"
+    rc = main(["route", "--world", "lab01", "--world", "lab02", "--flight-config", "config/flight.yaml",
+               "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 1  # lab02 has no route
+    assert "lab01-free: a route keeps" in text and "lab02-two-boxes: no route" in text
+    reports = json.loads(out.read_text())["reports"]
+    assert [r["route"] for r in reports] == [True, False]
+    assert main(["route", "--world", "lab01", "--flight-config", "config/flight.yaml"]) == 0
+    assert main(["route", "--world", "lab01", "--shield", "off"]) == 2
