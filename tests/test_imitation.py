@@ -115,3 +115,25 @@ def test_train_with_imitation_only_writes_the_records_and_a_flyable_model(tmp_pa
     ck = load_checkpoint(result.model_path)
     assert ck.meta["train_config"]["dagger_iterations"] == 2
     assert (result.run_dir / "checkpoints" / "imitation.pt").is_file()
+
+
+def test_fit_by_updates_takes_that_many_steps_whatever_the_aggregates_size() -> None:
+    """``imitation_updates``: a fixed number of minibatch steps (a fit whose cost does not grow
+    with the aggregate); 0 keeps the passes, whose count grows with it."""
+    agent = DQNAgent(NetworkConfig())
+    steps: list[int] = []
+
+    class Counting(torch.optim.Adam):
+        def step(self, closure=None):
+            steps.append(1)
+            return super().step(closure)
+
+    for n in (64, 256):
+        data = Aggregate(n, (1, 32, 32), (1, 3), 18)
+        data.add(np.full((n, 1, 32, 32), 0.5, np.float32), np.zeros((n, 1, 3), np.float32),
+                 np.full((n, 18), 1 / 18, np.float32), 0)
+        for updates, expected in ((7, 7), (0, 2 * n // 32)):
+            steps.clear()
+            opt = Counting(agent.q.parameters())
+            fit(agent, data, 2.0, 32, np.random.default_rng(0), opt, updates=updates)
+            assert len(steps) == expected, (n, updates)

@@ -152,6 +152,10 @@ class TrainConfig:
     (iteration 0: the teacher alone), the network otherwise. Range: [0, 1]."""
     imitation_epochs: Annotated[float, pydantic.Field(gt=0, le=1000)] = 5.0
     """Passes over the aggregated labels after each DAgger iteration. Range: (0, 1000]."""
+    imitation_updates: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
+    """Minibatch updates after each DAgger iteration, in place of ``imitation_epochs`` passes: a
+    fit whose cost stays the same as the aggregate grows (the passes' cost grows with it). 0: the
+    passes. Range: [0, 10^7]."""
     imitation_lr: Annotated[float, pydantic.Field(gt=0, le=1)] = 1e-3
     """Adam step size of the imitation fits. Range: (0, 1]."""
     imitation_temperature_m: Annotated[float, pydantic.Field(gt=0, le=100)] = 0.1

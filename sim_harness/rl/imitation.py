@@ -12,9 +12,10 @@ Iteration ``i`` (0, 1, ...) of :func:`dagger`:
    a soft target, ``imitation_temperature_m``) or the product itself
    (:class:`sim_harness.rl.filter_teacher.FilterTeacher`: a frozen network behind the depth safety
    filter; its Q-values with the vetoed primitives pushed down).
-3. **Fit** the network to the aggregate (``imitation_epochs`` passes, minibatches of
-   ``batch_size``, Adam at ``imitation_lr``): its Q-values as logits by cross-entropy to soft
-   targets, or its Q-values to Q labels by the Huber loss (the teacher's ``loss``).
+3. **Fit** the network to the aggregate (``imitation_epochs`` passes, or ``imitation_updates``
+   minibatches whatever its size, of ``batch_size`` each, Adam at ``imitation_lr``): its
+   Q-values as logits by cross-entropy to soft targets, or its Q-values to Q labels by the Huber
+   loss (the teacher's ``loss``).
 
 The network is the one the RL loop and the daemon use, unchanged: the greedy action is the
 arg-max of the same 18 outputs, and the order of the others is the teacher's, which is what the
@@ -57,6 +58,7 @@ class DaggerSettings:
     buffer: int
     seed: int
     filtered_share: float = 0.0
+    updates: int = 0
 
 
 class Aggregate:
@@ -142,14 +144,16 @@ def collect(
 
 
 def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
-        optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy") -> tuple[float, float]:
-    """``epochs`` passes (fractions allowed) of cross-entropy between softmax(Q) and the targets
-    (``loss_kind`` "cross_entropy"), or of the Huber loss between Q and the targets ("huber");
-    returns the mean loss and the share of the last tenth's samples whose arg-max Q is the
-    teacher's first choice. The target network is set to the result."""
+        optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy", updates: int = 0
+        ) -> tuple[float, float]:
+    """``epochs`` passes (fractions allowed), or ``updates`` minibatches when > 0, of cross-entropy
+    between softmax(Q) and the targets (``loss_kind`` "cross_entropy"), or of the Huber loss
+    between Q and the targets ("huber"); returns the mean loss and the share of the last tenth's
+    samples whose arg-max Q is the teacher's first choice. The target network is set to the
+    result."""
     if loss_kind not in ("cross_entropy", "huber"):
         raise ValueError(f"loss_kind must be 'cross_entropy' or 'huber', got {loss_kind!r}")
-    n_batches = max(1, round(epochs * len(data) / batch_size))
+    n_batches = updates if updates > 0 else max(1, round(epochs * len(data) / batch_size))
     losses: list[float] = []
     agree: list[float] = []
     agent.q.train()
@@ -208,7 +212,7 @@ def dagger(
                 "iteration": it, "beta": round(beta, 6), "scale_m": cfg.primitives.scale_m,
                 "outcomes": counts, "dataset": len(data),
             })
-        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, teacher.loss)
+        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, teacher.loss, s.updates)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["wall_s"] = round(time.monotonic() - t0, 2)

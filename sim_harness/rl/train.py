@@ -218,7 +218,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         iterations=cfg.dagger_iterations, episodes=cfg.dagger_episodes, beta=cfg.dagger_beta,
         epochs=cfg.imitation_epochs, lr=cfg.imitation_lr, temperature_m=cfg.imitation_temperature_m,
         batch_size=cfg.batch_size, buffer=cfg.imitation_buffer, seed=cfg.seed,
-        filtered_share=cfg.dagger_filtered_share,
+        filtered_share=cfg.dagger_filtered_share, updates=cfg.imitation_updates,
     )
     records = dagger(agent, scaled, teacher, settings, cfg.n_envs)
     (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
