@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from quadnav_onboard.shield import ShieldConfig
@@ -10,6 +12,7 @@ from sim_harness.route import route_report
 from sim_harness.world import parse_world
 
 FILTER = ShieldConfig(enabled=True)  # clearance 0.5 m
+FLIGHT = str(Path(__file__).resolve().parents[1] / "config" / "flight.yaml")
 
 
 def _wall_with_gap(gap_m: float, gap_y_m: float = 0.0) -> dict:
@@ -61,12 +64,12 @@ def test_the_cli_checks_the_labs_under_the_flight_config(tmp_path, capsys):
     import json
 
     out = tmp_path / "route.json"
-    rc = main(["route", "--world", "lab01", "--world", "lab02", "--flight-config", "config/flight.yaml",
+    rc = main(["route", "--world", "lab01", "--world", "lab02", "--flight-config", FLIGHT,
                "--json", str(out)])
     text = capsys.readouterr().out
     assert rc == 1  # lab02 has no route
     assert "lab01-free: a route keeps" in text and "lab02-two-boxes: no route" in text
     reports = json.loads(out.read_text())["reports"]
     assert [r["route"] for r in reports] == [True, False]
-    assert main(["route", "--world", "lab01", "--flight-config", "config/flight.yaml"]) == 0
+    assert main(["route", "--world", "lab01", "--flight-config", FLIGHT]) == 0
     assert main(["route", "--world", "lab01", "--shield", "off"]) == 2
