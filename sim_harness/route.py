@@ -26,6 +26,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav_onboard.path import RoughPath
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.collision import clearance_m
 from sim_harness.world import World
@@ -115,8 +116,6 @@ def margin_field(
         inside = np.minimum(cells - np.asarray(shield.fence_min_m), np.asarray(shield.fence_max_m) - cells)
         slack["room"] = inside.min(axis=1) - shield.fence_margin_m
     if shield.band_waypoints_m is not None and shield.band_half_width_m is not None:
-        from quadnav_onboard.path import RoughPath
-
         band = RoughPath(np.asarray(shield.band_waypoints_m, dtype=np.float64))
         slack["deviation"] = shield.band_half_width_m - band.deviation_m(cells) - shield.band_margin_m
     if altitude_m is not None:

@@ -57,7 +57,7 @@ def test_a_room_round_trips_and_a_bad_room_names_the_file_and_the_key():
 def test_the_lab_worlds_are_the_papers_labs_and_fit_the_flight_config():
     cfg = load_flight_config(FLIGHT)
     lo, hi = np.asarray(cfg.safety.geofence_min_m), np.asarray(cfg.safety.geofence_max_m)
-    for name, n_obstacles in (("lab01", 0), ("lab02", 2)):
+    for name, n_obstacles in (("lab01", 0), ("lab02", 2), ("lab03", 1)):
         w = load_world(resolve_world_arg(f"{name}.yaml"))
         assert len(w.obstacles) == n_obstacles and len(w.walls) == 4
         assert w.path.length_m == pytest.approx(3.5, abs=0.01)  # the paper's 3.5 m, diagonal
@@ -167,6 +167,8 @@ def test_lab_env_2_as_chosen_has_no_way_round_its_boxes_that_keeps_the_filters_c
     only near the boxes' tops, where their edges are farther than their sides."""
     free = _route("lab01", deviation_limit=True)
     assert free.route and free.spare_m >= 0.2
+    one_box = _route("lab03", deviation_limit=True)  # the box moved 0.3 m on, the second gone
+    assert one_box.route and one_box.spare_m >= 0.2
     boxes = _route("lab02", deviation_limit=True)
     assert not boxes.route and boxes.start_ok and set(boxes.closed_by) == {"clearance", "deviation"}
     assert _route("lab02", deviation_limit=False).route
