@@ -7,6 +7,7 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sim_harness.cmd_eval import (
     add_flight_flags,
@@ -14,6 +15,9 @@ from sim_harness.cmd_eval import (
     flight_setup,
     shield_from_flags,
 )
+
+if TYPE_CHECKING:
+    from sim_harness.route import LatticeRoute
 
 __all__ = ["add_parser", "run"]
 
@@ -32,9 +36,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Flood-fill each world's free space, shrunk by the depth safety filter's margins "
         "(clearance from every solid, the known room, and under --flight-config the deviation limit "
         "and the altitude band), and say whether the path's start still connects to its goal, with "
-        "how much to spare, or which limits close it. A necessary condition for a goal, not a "
-        "sufficient one: the vehicle flies primitives, not any curve. Exit status 1 when a world has "
-        "no route.",
+        "how much to spare, or which limits close it; then search the primitives themselves from the "
+        "start for the shortest sequence that keeps the margins from the true geometry and reaches "
+        "the goal within the step limit. Both are necessary conditions for a goal, not sufficient "
+        "ones: the filter knows only what it saw, and the planner must find the sequence. Exit "
+        "status 1 when a world fails either.",
     )
     p.add_argument(
         "--world", action="append", required=True, metavar="WORLD",
@@ -62,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
     from sim_harness.rl.evaluate import env_config_for_policy, known_room
-    from sim_harness.route import route_report
+    from sim_harness.route import lattice_route, route_report
     from sim_harness.world import WorldError, load_world, resolve_world_arg
 
     if args.flight_config and args.primitive_scale is not None:
@@ -88,18 +94,37 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     altitude = None if limits is None else (limits.altitude_floor_m, limits.altitude_ceiling_m)
-    reports = []
+    prims = env_cfg.primitives.build()
+    rows, ok = [], True
     for world in worlds:
         shield = known_room(env_cfg.shield, world, limits)
-        report = route_report(world, shield, env_cfg.goal_radius_m, altitude, args.grid_m)
+        stop = env_cfg.reward.max_deviation_m  # the episode's deviation stop (flight: the supervisor's)
+        report = route_report(world, shield, env_cfg.goal_radius_m, altitude, args.grid_m, stop)
+        lattice = lattice_route(
+            world, prims, shield, env_cfg.goal_radius_m, env_cfg.max_steps, altitude, stop
+        )
         print(report.describe())
-        reports.append(report)
+        print("  " + _describe_lattice(lattice, prims.scale_m, env_cfg.max_steps))
+        rows.append({**report.to_dict(), "primitives": lattice.to_dict()})
+        ok &= report.route and lattice.steps is not None
     if args.json:
         out = {
             "model": str(model),
             "flight_config": args.flight_config,
             "clearance_m": env_cfg.shield.clearance_m,
-            "reports": [r.to_dict() for r in reports],
+            "primitive_scale_m": prims.scale_m,
+            "max_steps": env_cfg.max_steps,
+            "reports": rows,
         }
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
-    return 0 if all(r.route for r in reports) else 1
+    return 0 if ok else 1
+
+
+def _describe_lattice(lattice: LatticeRoute, scale_m: float, max_steps: int) -> str:
+    if lattice.steps is not None:
+        return (f"by {scale_m:g} m primitives, each keeping the margins from the true geometry: "
+                f"the goal in {lattice.steps} steps (limit {max_steps})")
+    if not lattice.decided:
+        return f"by {scale_m:g} m primitives: undecided (the search stopped at {lattice.states} states)"
+    return (f"by {scale_m:g} m primitives: no sequence that keeps the margins reaches the goal in "
+            f"{max_steps} steps")

@@ -14,11 +14,19 @@ its margin). ``spare_m`` is the widest slack a route keeps all the way (the rout
 found by bisection to the grid's resolution). It is a necessary condition, not a sufficient one:
 the vehicle flies a lattice of primitives with a stopping look-ahead, not any curve, so a route
 with a few centimetres to spare may still be unflyable by primitives.
+
+:func:`lattice_route` is the tighter check: a breadth-first search over the primitives themselves
+from the path's start at rest, each one's flown path predicted as the filter predicts it (the
+position loop, the stopping look-ahead) from a vehicle that tracks perfectly, and allowed when it
+keeps every margin from the TRUE geometry (the filter only knows what it saw, which is less). It
+answers whether some sequence of allowed primitives reaches the goal within the step limit (and
+gives a short one's length); not whether a planner finds it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import math
 from typing import Any
 
@@ -26,12 +34,14 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from quadnav_onboard.frames import body_to_world
 from quadnav_onboard.path import RoughPath
-from quadnav_onboard.shield import ShieldConfig
+from quadnav_onboard.primitives import PrimitiveSet
+from quadnav_onboard.shield import ShieldConfig, band_clearance, fence_clearance, primitive_samples
 from sim_harness.collision import clearance_m
 from sim_harness.world import World
 
-__all__ = ["LIMITS", "RouteReport", "margin_field", "route_report"]
+__all__ = ["LIMITS", "LatticeRoute", "RouteReport", "lattice_route", "margin_field", "route_report"]
 
 LIMITS = ("clearance", "room", "deviation", "altitude")
 """The margins the check keeps, by name: ``clearance`` from every solid (obstacles and walls),
@@ -67,17 +77,21 @@ class RouteReport:
             return f"{self.world}: a route keeps the filter's margins with {self.spare_m:.2f} m to spare"
         if not self.start_ok:
             return f"{self.world}: no route: the path's start itself breaks a margin of the filter"
-        opens = (
-            "; lifting any one of " + ", ".join(self.closed_by) + " alone would open one"
-            if self.closed_by else "; no single limit lifted alone opens one"
-        )
+        if len(self.closed_by) == 1:
+            opens = f"; lifting {self.closed_by[0]} alone would open one"
+        elif self.closed_by:
+            opens = "; lifting any one of " + ", ".join(self.closed_by) + " alone would open one"
+        else:
+            opens = "; no single limit lifted alone opens one"
         return f"{self.world}: no route keeps the filter's margins (grid {self.grid_m:.3f} m){opens}"
 
 
-def _grid(world: World, shield: ShieldConfig, grid_m: float) -> tuple[NDArray, float, tuple[int, int, int]]:
+def _grid(world: World, shield: ShieldConfig, grid_m: float, max_deviation_m: float | None
+          ) -> tuple[NDArray, float, tuple[int, int, int]]:
     """Cell centres (n, 3) of the box the route can be in, the voxel size used, the grid's shape."""
     pts = world.path.waypoints_m
-    reach = max(3.0, shield.band_half_width_m or 0.0)  # the band may be lifted (closed_by)
+    # the band may be lifted (closed_by); the episode's own deviation stop may not
+    reach = max_deviation_m if max_deviation_m is not None else max(3.0, shield.band_half_width_m or 0.0)
     lo = pts.min(axis=0) - reach
     hi = pts.max(axis=0) + reach
     if shield.fence_min_m is not None and shield.fence_max_m is not None:
@@ -101,23 +115,28 @@ def margin_field(
     shield: ShieldConfig,
     altitude_m: tuple[float, float] | None = None,
     grid_m: float = 0.025,
+    max_deviation_m: float | None = None,
 ) -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64], float, tuple[int, int, int]]:
     """Per limit of :data:`LIMITS` the slack (m) of every cell, the cells (n, 3), the voxel size and
     the grid's shape. A limit the filter does not know (no room, no band, no altitude band) has an
-    infinite slack. ``solid`` (not a limit) is the distance to the nearest solid itself: no route
-    goes through a wall, whatever is lifted."""
-    cells, g, shape = _grid(world, shield, grid_m)
+    infinite slack. Two more entries are never lifted: ``solid``, the distance to the nearest solid
+    (no route goes through a wall), and ``stop``, the slack inside ``max_deviation_m`` of the path,
+    the episode's deviation stop (the env's; in flight the supervisor's)."""
+    cells, g, shape = _grid(world, shield, grid_m, max_deviation_m)
     inf = np.full(cells.shape[0], np.inf)
     slack = {name: inf for name in LIMITS}
     solid = clearance_m(world, cells)
     slack["clearance"] = solid - shield.clearance_m
     slack["solid"] = solid
+    slack["stop"] = inf
     if shield.fence_min_m is not None and shield.fence_max_m is not None:
         inside = np.minimum(cells - np.asarray(shield.fence_min_m), np.asarray(shield.fence_max_m) - cells)
         slack["room"] = inside.min(axis=1) - shield.fence_margin_m
     if shield.band_waypoints_m is not None and shield.band_half_width_m is not None:
         band = RoughPath(np.asarray(shield.band_waypoints_m, dtype=np.float64))
         slack["deviation"] = shield.band_half_width_m - band.deviation_m(cells) - shield.band_margin_m
+    if max_deviation_m is not None:
+        slack["stop"] = max_deviation_m - world.path.deviation_m(cells)
     if altitude_m is not None:
         slack["altitude"] = np.minimum(cells[:, 2] - altitude_m[0], altitude_m[1] - cells[:, 2])
     return slack, cells, g, shape
@@ -162,14 +181,16 @@ def route_report(
     goal_radius_m: float,
     altitude_m: tuple[float, float] | None = None,
     grid_m: float = 0.025,
+    max_deviation_m: float | None = None,
 ) -> RouteReport:
     """Whether ``world`` leaves a route from its path's start to within ``goal_radius_m`` of its
     goal that keeps ``shield``'s margins (its known room and deviation band as set, e.g. by
-    :func:`sim_harness.rl.evaluate.known_room`) and the altitude band ``altitude_m``."""
+    :func:`sim_harness.rl.evaluate.known_room`) and the altitude band ``altitude_m``, within the
+    deviation stop ``max_deviation_m`` of the path."""
     if not (math.isfinite(grid_m) and grid_m > 0):
         raise ValueError(f"grid_m: bad value {grid_m!r}: must be finite and > 0")
-    slack, cells, g, shape = margin_field(world, shield, altitude_m, grid_m)
-    least = np.minimum.reduce([slack[name] for name in LIMITS])  # (clearance implies solid)
+    slack, cells, g, shape = margin_field(world, shield, altitude_m, grid_m, max_deviation_m)
+    least = np.minimum.reduce([slack[name] for name in (*LIMITS, "stop")])  # clearance implies solid
     start = int(np.argmin(np.linalg.norm(cells - world.path.start_m, axis=1)))
     goal = np.linalg.norm(cells - world.path.goal_m, axis=1) <= goal_radius_m
 
@@ -181,7 +202,7 @@ def route_report(
         closed_by = tuple(
             name for name in LIMITS
             if np.isfinite(slack[name]).any()
-            and connected(np.minimum.reduce([slack[n] for n in (*LIMITS, "solid") if n != name]), 0.0)
+            and connected(np.minimum.reduce([slack[n] for n in (*LIMITS, "solid", "stop") if n != name]), 0.0)
         )
         return RouteReport(world.name, False, 0.0, closed_by, start_ok, g)
     lo, hi = 0.0, float(min(least[start], least[goal].max()))
@@ -189,3 +210,109 @@ def route_report(
         mid = (lo + hi) / 2
         lo, hi = (mid, hi) if connected(least, mid) else (lo, mid)
     return RouteReport(world.name, True, round(lo, 3), (), start_ok, g)
+
+
+MAX_LATTICE_STATES = 300_000
+"""The lattice search gives up (``decided`` False) past this many distinct states."""
+
+GREED = 3.0
+"""Weight of the steps-to-go bound in the lattice search's priority (1: A*, shortest first)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LatticeRoute:
+    """What :func:`lattice_route` found for one world."""
+
+    steps: int | None
+    """Primitives of the allowed sequence found from the start to the goal (short, not always the
+    shortest); None: none within the step limit (or the search gave up: ``decided``)."""
+    states: int
+    """Distinct states (commanded point, last primitive) the search reached."""
+    decided: bool
+    """False when the search stopped at :data:`MAX_LATTICE_STATES` before an answer."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArray, vel: NDArray,
+             altitude_m: tuple[float, float] | None) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
+    """For M states at rest-free tracking (the vehicle on its commanded point at its commanded
+    velocity): which primitives (M, A) keep every margin against the true geometry, their end
+    points and end velocities (M, A, 3)."""
+    yaw = world.path.yaw_at(world.path.closest(pos)[0])
+    samples = primitive_samples(prims, pos, vel, yaw, shield, pos_world_m=pos, vel_world_m_s=vel)
+    m, a, k = samples.shape[:3]
+    clear = clearance_m(world, samples.reshape(-1, 3)).reshape(m, a, k).min(axis=2)
+    ok = clear >= shield.clearance_m
+    if shield.fence_min_m is not None and shield.fence_max_m is not None:
+        ok &= fence_clearance(samples, shield.fence_min_m, shield.fence_max_m) >= shield.fence_margin_m
+    if shield.band_waypoints_m is not None and shield.band_half_width_m is not None:
+        band = RoughPath(np.asarray(shield.band_waypoints_m, dtype=np.float64))
+        ok &= band_clearance(samples, band, shield.band_half_width_m) >= shield.band_margin_m
+    if altitude_m is not None:
+        z = samples[:, :, :-1, 2]  # where the vehicle is (the supervisor's stop), not the look-ahead
+        ok &= (z.min(axis=2) >= altitude_m[0]) & (z.max(axis=2) <= altitude_m[1])
+    d_world = body_to_world(np.broadcast_to(prims.end_displacement_m(np.arange(a)), (m, a, 3)), yaw[:, None])
+    v_world = body_to_world(np.broadcast_to(prims.end_velocity_m_s(np.arange(a)), (m, a, 3)), yaw[:, None])
+    return ok, pos[:, None, :] + d_world, v_world
+
+
+def lattice_route(
+    world: World,
+    prims: PrimitiveSet,
+    shield: ShieldConfig,
+    goal_radius_m: float,
+    max_steps: int,
+    altitude_m: tuple[float, float] | None = None,
+    max_deviation_m: float | None = None,
+    batch: int = 256,
+) -> LatticeRoute:
+    """A sequence of primitives from ``world``'s path start (at rest) to within ``goal_radius_m``
+    of its goal (or past its end) in at most ``max_steps``, each primitive allowed by ``shield``'s
+    margins against the true geometry (see the module docstring), never farther than
+    ``max_deviation_m`` from the path (the episode's stop). Best-first (weighted A*:
+    steps so far plus :data:`GREED` times a lower bound of the steps to go, ``batch`` states
+    expanded at a time, so the sequence found is short but not always the shortest); a state is
+    dropped only when even the lower bound overruns the step limit, and every other is expanded
+    before "none" is answered."""
+    path = world.path
+    step_m = float(np.linalg.norm(prims.end_displacement_m(np.arange(prims.n_actions)), axis=1).max())
+
+    def to_go(p: NDArray) -> NDArray:  # steps at least, from p to the goal ball (admissible)
+        return np.maximum(np.linalg.norm(p - path.goal_m, axis=-1) - goal_radius_m, 0.0) / step_m
+
+    pos_l, vel_l, g_l = [path.start_m.astype(np.float64)], [np.zeros(3)], [0]
+    seen: set[tuple[int, ...]] = {(*np.round(path.start_m / 0.01).astype(int).tolist(), -1)}
+    heap: list[tuple[float, int]] = [(float(to_go(path.start_m)), 0)]
+    while heap:
+        take = [heapq.heappop(heap)[1] for _ in range(min(batch, len(heap)))]
+        pos, vel = np.array([pos_l[i] for i in take]), np.array([vel_l[i] for i in take])
+        g = np.array([g_l[i] for i in take])
+        ok, ends, v_end = _allowed(world, prims, shield, pos, vel, altitude_m)
+        rows, acts = np.nonzero(ok)
+        if rows.size == 0:
+            continue
+        new_pos, new_vel, new_g = ends[rows, acts], v_end[rows, acts], g[rows] + 1
+        arc, dev = path.closest(new_pos)
+        if max_deviation_m is not None:  # the episode ends there
+            inside = dev <= max_deviation_m
+            new_pos, new_vel, new_g, acts, arc = (x[inside] for x in (new_pos, new_vel, new_g, acts, arc))
+        near = np.linalg.norm(new_pos - path.goal_m, axis=1) <= goal_radius_m
+        done = near | (arc >= path.length_m - 1e-9)
+        if done.any():
+            return LatticeRoute(int(new_g[done].min()), len(seen), True)
+        h = to_go(new_pos)
+        bound, priority = new_g + h, new_g + GREED * h
+        keys = np.concatenate([np.round(new_pos / 0.01).astype(np.int64), acts[:, None]], axis=1)
+        for j, key in enumerate(map(tuple, keys.tolist())):
+            if bound[j] > max_steps or key in seen:
+                continue
+            seen.add(key)
+            pos_l.append(new_pos[j])
+            vel_l.append(new_vel[j])
+            g_l.append(int(new_g[j]))
+            heapq.heappush(heap, (float(priority[j]), len(pos_l) - 1))
+        if len(seen) > MAX_LATTICE_STATES:
+            return LatticeRoute(None, len(seen), False)
+    return LatticeRoute(None, len(seen), True)

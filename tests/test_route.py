@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from quadnav_onboard.primitives import PrimitiveSet
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.cli import main
-from sim_harness.route import route_report
+from sim_harness.route import lattice_route, route_report
 from sim_harness.world import parse_world
 
 FILTER = ShieldConfig(enabled=True)  # clearance 0.5 m
@@ -59,6 +60,28 @@ def test_a_start_that_breaks_a_margin_is_said_and_a_bad_grid_is_refused():
         route_report(world, FILTER, 0.5, grid_m=float("nan"))
 
 
+def test_the_primitives_fly_through_a_gap_on_their_lattice_and_not_through_a_narrower_one():
+    """The lattice search: 1 m primitives straight through a 1.4 m gap on the path (4 steps to the
+    goal 4 m on, 0.5 m radius); none through a 0.9 m one inside a 5 m deviation stop."""
+    prims = PrimitiveSet(scale_m=1.0)
+    wide = lattice_route(parse_world(_wall_with_gap(1.4), "t"), prims, FILTER, 0.5, 20, max_deviation_m=5)
+    assert wide.steps == 4 and wide.decided
+    narrow = lattice_route(parse_world(_wall_with_gap(0.9), "t"), prims, FILTER, 0.5, 20, max_deviation_m=5)
+    assert narrow.steps is None and narrow.decided
+    # the wall ends 6 m off the path: without the deviation stop, round its end
+    assert lattice_route(parse_world(_wall_with_gap(0.9), "t"), prims, FILTER, 0.5, 20).steps is not None
+
+
+def test_a_route_the_lattice_cannot_follow_is_found_by_the_fill_and_not_by_the_search():
+    """A 1.4 m gap 0.25 m off the path: any curve passes it with 0.2 m to spare, but the 1 m
+    lattice from the path's start crosses the wall only 0 or 1 m off the path, 0.45 m from an edge
+    of the gap (0.5 m needed): the fill says yes, the primitives no."""
+    world = parse_world(_wall_with_gap(1.4, gap_y_m=0.25), "t")
+    assert route_report(world, FILTER, 0.5, grid_m=0.02).route
+    got = lattice_route(world, PrimitiveSet(scale_m=1.0), FILTER, 0.5, 20, max_deviation_m=5)
+    assert got.steps is None and got.decided
+
+
 def test_the_cli_checks_the_labs_under_the_flight_config(tmp_path, capsys):
     """End to end: ``quadnav-sim route`` on the shipped labs under config/flight.yaml."""
     import json
@@ -69,7 +92,9 @@ def test_the_cli_checks_the_labs_under_the_flight_config(tmp_path, capsys):
     text = capsys.readouterr().out
     assert rc == 1  # lab02 has no route
     assert "lab01-free: a route keeps" in text and "lab02-two-boxes: no route" in text
+    assert "no sequence that keeps the margins reaches the goal in 30 steps" in text
     reports = json.loads(out.read_text())["reports"]
     assert [r["route"] for r in reports] == [True, False]
+    assert reports[0]["primitives"]["steps"] <= 30 and reports[1]["primitives"]["steps"] is None
     assert main(["route", "--world", "lab01", "--flight-config", FLIGHT]) == 0
     assert main(["route", "--world", "lab01", "--shield", "off"]) == 2
