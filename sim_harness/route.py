@@ -237,7 +237,7 @@ class LatticeRoute:
 
 def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArray, vel: NDArray,
              altitude_m: tuple[float, float] | None) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
-    """For M states at rest-free tracking (the vehicle on its commanded point at its commanded
+    """For M states of a vehicle that tracks perfectly (on its commanded point at its commanded
     velocity): which primitives (M, A) keep every margin against the true geometry, their end
     points and end velocities (M, A, 3)."""
     yaw = world.path.yaw_at(world.path.closest(pos)[0])
