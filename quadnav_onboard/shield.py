@@ -45,6 +45,7 @@ __all__ = [
     "ShieldConfig",
     "allowed_actions",
     "band_clearance",
+    "band_path",
     "depth_points_heading",
     "fence_clearance",
     "points_per_view",
@@ -211,7 +212,7 @@ class ShieldConfig:
             finite = all(math.isfinite(v) for p in pts for v in p)
             if len(pts) < 2 or any(len(p) != 3 for p in pts) or not finite:
                 raise ValueError(f"band_waypoints_m must be >= 2 points of 3 finite numbers, got {pts!r}")
-            _band_path(pts)  # a path as the mission's: consecutive waypoints distinct
+            band_path(pts)  # a path as the mission's: consecutive waypoints distinct
             if not 0 <= self.band_margin_m < half:
                 raise ValueError(
                     f"need 0 <= band_margin_m < band_half_width_m, got band_margin_m {self.band_margin_m!r} "
@@ -628,7 +629,7 @@ def band_clearance(samples_world_m: ArrayLike, path: RoughPath, half_width_m: fl
 
 
 @functools.lru_cache(maxsize=8)
-def _band_path(waypoints_m: tuple[tuple[float, float, float], ...]) -> RoughPath:
+def band_path(waypoints_m: tuple[tuple[float, float, float], ...]) -> RoughPath:
     """The band's rough path, built once per filter config (its waypoints are a config value)."""
     try:
         return RoughPath(np.asarray(waypoints_m, dtype=np.float64))
@@ -676,7 +677,7 @@ def shield_verdict(
         inside = fence_clearance(samples, fence_min_m, fence_max_m)  # less than the margin: vetoed
         clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.fence_margin_m, 0.0))
     if cfg.band_waypoints_m is not None and cfg.band_half_width_m is not None:
-        inside = band_clearance(samples, _band_path(cfg.band_waypoints_m), cfg.band_half_width_m)
+        inside = band_clearance(samples, band_path(cfg.band_waypoints_m), cfg.band_half_width_m)
         clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.band_margin_m, 0.0))
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 __all__ = ["add_parser", "run"]
 
 
-def _grid(text: str) -> float:
+def _grid_size(text: str) -> float:
     value = float(text)
     if not (math.isfinite(value) and 0.005 <= value <= 1.0):
         raise argparse.ArgumentTypeError(f"must be in [0.005, 1] m, got {text}")
@@ -37,7 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(clearance from every solid, the known room, and under --flight-config the deviation limit "
         "and the altitude band), and say whether the path's start still connects to its goal, with "
         "how much to spare, or which limits close it; then search the primitives themselves from the "
-        "start for the shortest sequence that keeps the margins from the true geometry and reaches "
+        "start for a short sequence that keeps the margins from the true geometry and reaches "
         "the goal within the step limit. Both are necessary conditions for a goal, not sufficient "
         "ones: the filter knows only what it saw, and the planner must find the sequence. Exit "
         "status 1 when a world fails either.",
@@ -56,7 +56,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_flight_flags(p, shield_default="on")
     p.add_argument(
-        "--grid-m", type=_grid, default=0.025, metavar="M",
+        "--grid-m", type=_grid_size, default=0.025, metavar="M",
         help="voxel size of the fill, in [0.005, 1] m (default 0.025; coarser for worlds over 6M cells)",
     )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the reports as JSON")

@@ -15,7 +15,7 @@ found by bisection to the grid's resolution). It is a necessary condition, not a
 the vehicle flies a lattice of primitives with a stopping look-ahead, not any curve, so a route
 with a few centimetres to spare may still be unflyable by primitives.
 
-:func:`lattice_route` is the tighter check: a breadth-first search over the primitives themselves
+:func:`lattice_route` is the tighter check: a best-first search over the primitives themselves
 from the path's start at rest, each one's flown path predicted as the filter predicts it (the
 position loop, the stopping look-ahead) from a vehicle that tracks perfectly, and allowed when it
 keeps every margin from the TRUE geometry (the filter only knows what it saw, which is less). It
@@ -35,9 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from quadnav_onboard.frames import body_to_world
-from quadnav_onboard.path import RoughPath
 from quadnav_onboard.primitives import PrimitiveSet
-from quadnav_onboard.shield import ShieldConfig, band_clearance, fence_clearance, primitive_samples
+from quadnav_onboard.shield import ShieldConfig, band_clearance, band_path, fence_clearance, primitive_samples
 from sim_harness.collision import clearance_m
 from sim_harness.world import World
 
@@ -133,7 +132,7 @@ def margin_field(
         inside = np.minimum(cells - np.asarray(shield.fence_min_m), np.asarray(shield.fence_max_m) - cells)
         slack["room"] = inside.min(axis=1) - shield.fence_margin_m
     if shield.band_waypoints_m is not None and shield.band_half_width_m is not None:
-        band = RoughPath(np.asarray(shield.band_waypoints_m, dtype=np.float64))
+        band = band_path(shield.band_waypoints_m)
         slack["deviation"] = shield.band_half_width_m - band.deviation_m(cells) - shield.band_margin_m
     if max_deviation_m is not None:
         slack["stop"] = max_deviation_m - world.path.deviation_m(cells)
@@ -248,8 +247,9 @@ def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArr
     if shield.fence_min_m is not None and shield.fence_max_m is not None:
         ok &= fence_clearance(samples, shield.fence_min_m, shield.fence_max_m) >= shield.fence_margin_m
     if shield.band_waypoints_m is not None and shield.band_half_width_m is not None:
-        band = RoughPath(np.asarray(shield.band_waypoints_m, dtype=np.float64))
-        ok &= band_clearance(samples, band, shield.band_half_width_m) >= shield.band_margin_m
+        ok &= band_clearance(samples, band_path(shield.band_waypoints_m), shield.band_half_width_m) >= (
+            shield.band_margin_m
+        )
     if altitude_m is not None:
         z = samples[:, :, :-1, 2]  # where the vehicle is (the supervisor's stop), not the look-ahead
         ok &= (z.min(axis=2) >= altitude_m[0]) & (z.max(axis=2) <= altitude_m[1])

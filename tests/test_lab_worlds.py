@@ -11,8 +11,10 @@ import pytest
 
 from quadnav_onboard.daemon.config import dry_run_config, flies_hardware, load_flight_config
 from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.collision import clearance_m
+from sim_harness.env import VecQuadNavEnv
 from sim_harness.render import render_inputs
 from sim_harness.rl.evaluate import FlightLimits, evaluate, flight_eval_setup, known_room
 from sim_harness.route import route_report
@@ -176,3 +178,51 @@ def test_lab_env_2_as_chosen_has_no_way_round_its_boxes_that_keeps_the_filters_c
     flight = load_flight_config(FLIGHT)
     tops = [o.center_m[2] + o.size_m[2] / 2 for o in load_world(resolve_world_arg("lab02")).obstacles]
     assert min(tops) + ShieldConfig().clearance_m > flight.safety.altitude_ceiling_m
+
+
+@pytest.mark.parametrize(("face_m", "forward"), [(1.0, False), (1.2, True)])
+def test_a_corner_start_leaves_the_filter_no_sideways_move_and_a_near_box_no_forward_one(face_m, forward):
+    """docs/hardware.md, 7.5: from the lab's corner start (0.6 m inside the geofence on both
+    axes) no primitive to the side is allowed; a box face 1.2 m along the path leaves the forward
+    primitive, one 1.0 m along does not (a 0.5 m step, its overshoot and the 0.5 m clearance)."""
+    flight = load_flight_config(FLIGHT)
+    s, c = face_m + 0.2, -0.3  # lab03's box (0.4 m deep, reaching 0.3 m left of the path), moved
+    box = {"type": "box", "center": [(s - c) / np.sqrt(2), (s + c) / np.sqrt(2), 1.1],
+           "size": [0.4, 1.2, 2.2], "yaw_deg": 45}
+    room = world_to_mapping(load_world(resolve_world_arg("lab01")))
+    world = parse_world({**room, "obstacles": [box]}, "t")
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    env_cfg, worlds, limits = flight_eval_setup(policy, flight, [world], start_jitter_m=0.0)
+    env_cfg = dataclasses.replace(env_cfg, shield=known_room(env_cfg.shield, worlds[0], limits))
+    env = VecQuadNavEnv(worlds, 1, seed=0, config=env_cfg, autoreset=False)
+    env.reset()
+    allowed = {DEFAULT_DIRECTIONS[a] for a in np.flatnonzero(env.allowed[0])}
+    assert not any(d[0] == 0 and d[1] != 0 for d in allowed)  # nothing sideways
+    assert ((1, 0, 0) in allowed) is forward
+
+
+def test_in_the_one_box_lab_the_shipped_model_hovers_where_the_filter_still_allows_a_way_on():
+    """docs/results.md, "Lab rehearsal": from lab03's start (no jitter, no noise) the shipped model
+    flies forward, left and up, then holds its place about 0.5 m along until the step limit. The
+    filter vetoes the forward primitive there (the box's corner) but still allows one that moves
+    on (forward-left), and the DQN ranks hover above it: the planner, not the filter, stops it."""
+    from quadnav_onboard.policy import masked_argmax
+
+    flight = load_flight_config(FLIGHT)
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    env_cfg, worlds, limits = flight_eval_setup(
+        policy, flight, [load_world(resolve_world_arg("lab03"))], start_jitter_m=0.0
+    )
+    env_cfg = dataclasses.replace(env_cfg, shield=known_room(env_cfg.shield, worlds[0], limits))
+    env = VecQuadNavEnv(worlds, 1, seed=0, config=env_cfg, autoreset=False)
+    depth, rel = env.reset()
+    for _ in range(8):
+        action = masked_argmax(policy.q_values_batch(depth, rel), env.allowed)
+        depth, rel, *_ = env.step(action)
+    assert not env.done[0]
+    along = worlds[0].path.closest(env.pos_m)[0][0]
+    assert 0.3 < along < 0.7
+    allowed = {DEFAULT_DIRECTIONS[a] for a in np.flatnonzero(env.allowed[0])}
+    assert (1, 0, 0) not in allowed and any(d[0] == 1 for d in allowed)
+    chosen = masked_argmax(policy.q_values_batch(depth, rel), env.allowed)[0]
+    assert DEFAULT_DIRECTIONS[chosen] == (0, 0, 0)
