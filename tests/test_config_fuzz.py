@@ -117,6 +117,8 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.dagger_beta", "zero"): "the network flies every step after iteration 0",
     ("train.dagger_filtered_share", "zero"): "the network flies alone in every DAgger env",
     ("train.imitation_updates", "zero"): "the fit runs imitation_epochs passes instead",
+    ("train.imitation_margin_weight", "zero"): "the fit has no large-margin term",
+    ("train.imitation_veto_weight", "zero"): "the fit has no hinge on the filter's verdicts",
 }
 """Values (key pattern, value kind) a numeric field means something by: each is accepted by the
 field's own range; a check across fields (a geofence corner above its opposite, a ceiling below

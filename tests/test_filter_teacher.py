@@ -19,7 +19,7 @@ from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config
 from sim_harness.rl.filter_teacher import FilterTeacher, veto_targets
-from sim_harness.rl.imitation import Aggregate, collect, fit
+from sim_harness.rl.imitation import Aggregate, collect, fit, veto_loss
 from sim_harness.rl.train import train
 from sim_harness.world import parse_world
 
@@ -92,6 +92,9 @@ def test_collect_with_the_filter_teacher_labels_every_state_the_expert_flew(tmp_
     assert sum(counts.values()) == 2 and "crash" not in counts  # the filter kept it off the wall
     labels = np.argmax(data.target[: len(data)], axis=1)
     assert (labels == FORWARD).any() and (labels != FORWARD).any()  # forward, then round the wall
+    kept = data.allowed[: len(data)]  # the filter's verdicts, kept with the labels
+    assert not kept[labels != FORWARD, FORWARD].any()  # where forward was vetoed
+    assert kept[np.arange(len(data)), labels].all()  # the label's first choice was allowed
 
 
 def test_huber_fit_learns_q_labels() -> None:
@@ -126,6 +129,8 @@ def test_the_filter_teacher_needs_an_expert_and_the_filter_in_the_config() -> No
         load_train_config({"imitation_teacher": "oracle"}, "recipe.yaml")
     with pytest.raises(ConfigError, match=r"dagger_filtered_share.*0\.5.*shield"):
         load_train_config({"dagger_filtered_share": 0.5}, "recipe.yaml")
+    with pytest.raises(ConfigError, match=r"imitation_veto_weight.*2\.0.*shield"):
+        load_train_config({"imitation_veto_weight": 2.0}, "recipe.yaml")
     ok = load_train_config({**base, "shield": True, "init_model": "m.pt"}, "recipe.yaml")
     assert ok.imitation_teacher == "filter"
 
@@ -164,3 +169,41 @@ def test_dagger_can_fly_the_student_behind_the_filter(tmp_path) -> None:
         assert len(data) > 0
     assert outcomes[0.0].get("crash", 0) == 2
     assert "crash" not in outcomes[1.0]
+
+
+def test_veto_loss_is_zero_only_where_an_allowed_primitive_leads_every_vetoed_one() -> None:
+    q = torch.tensor([[3.0, 1.0, 0.0],    # allowed 0 and 2, vetoed 1: 3 leads 1 by 2 >= 1
+                      [3.0, 2.5, 0.0],    # the same verdicts, a lead of 0.5: 1 + 2.5 - 3
+                      [1.0, 2.0, 3.0],    # all allowed: no hinge
+                      [1.0, 2.0, 3.0]])   # only 0 allowed: 1 + 3 - 1
+    allowed = torch.tensor([[1, 0, 1], [1, 0, 1], [1, 1, 1], [1, 0, 0]], dtype=torch.bool)
+    assert float(veto_loss(q, allowed, 1.0)) == pytest.approx((0.0 + 0.5 + 0.0 + 3.0) / 4)
+    none_vetoed = torch.ones_like(allowed)
+    assert float(veto_loss(q, none_vetoed, 1.0)) == 0.0
+
+
+def test_the_veto_hinge_makes_the_students_first_choice_one_the_filter_allows() -> None:
+    """Q labels that rank a vetoed primitive first by a hair (as a label from a wrong expert
+    would): the Huber fit alone copies that order; with the hinge, the student's first choice is
+    an allowed primitive."""
+    rng = np.random.default_rng(0)
+    n = 256
+    depth = np.full((n, 1, 32, 32), 0.5, np.float32)
+    rel = rng.normal(size=(n, 1, 3)).astype(np.float32)
+    rel[:, 0, 1] = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 2.0, n)
+    vetoed = np.where(rel[:, 0, 1] > 0, FORWARD, 0)
+    target = np.ones((n, 18), np.float32)
+    target[np.arange(n), vetoed] = 1.05
+    allowed = np.ones((n, 18), bool)
+    allowed[np.arange(n), vetoed] = False
+    data = Aggregate(n, (1, 32, 32), (1, 3), 18)
+    data.add(depth, rel, target, 0, allowed)
+    first_allowed = {}
+    for weight in (0.0, 1.0):
+        torch.manual_seed(0)
+        agent = DQNAgent(NetworkConfig())
+        opt = torch.optim.Adam(agent.q.parameters(), lr=1e-3)
+        fit(agent, data, 30.0, 64, np.random.default_rng(0), opt, "huber", veto_weight=weight, margin=0.5)
+        first_allowed[weight] = np.mean(allowed[np.arange(n), agent.greedy(depth, rel)])
+    assert first_allowed[1.0] > 0.95
+    assert first_allowed[0.0] < 0.5

@@ -14,7 +14,7 @@ from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import TrainConfig
-from sim_harness.rl.imitation import Aggregate, collect, fit
+from sim_harness.rl.imitation import Aggregate, DaggerSettings, collect, fit, lr_at, margin_loss
 from sim_harness.rl.teacher import Teacher
 from sim_harness.rl.train import train
 from sim_harness.world import parse_world
@@ -137,3 +137,52 @@ def test_fit_by_updates_takes_that_many_steps_whatever_the_aggregates_size() -> 
             opt = Counting(agent.q.parameters())
             fit(agent, data, 2.0, 32, np.random.default_rng(0), opt, updates=updates)
             assert len(steps) == expected, (n, updates)
+
+
+def test_margin_loss_is_zero_only_where_the_experts_action_leads_by_the_margin() -> None:
+    q = torch.tensor([[3.0, 1.0, 0.5],    # expert 0 leads by 2 >= 1: no loss
+                      [3.0, 2.5, 0.0],    # expert 0 leads by 0.5: 1 + 2.5 - 3
+                      [3.0, 2.5, 0.0]])   # expert 2 trails: 1 + 3 - 0
+    expert = torch.tensor([0, 0, 2])
+    per_row = [float(margin_loss(q[i:i + 1], expert[i:i + 1], 1.0)) for i in range(3)]
+    assert per_row == pytest.approx([0.0, 0.5, 4.0])
+    assert float(margin_loss(q, expert, 1.0)) == pytest.approx(4.5 / 3)
+
+
+def test_the_margin_term_makes_the_huber_fit_separate_the_first_choice() -> None:
+    """Huber labels whose first choice leads by only 0.05: the fit alone gets the values near
+    but leaves the order to chance; with the margin term the first choice leads by about the
+    margin."""
+    rng = np.random.default_rng(0)
+    n = 256
+    depth = np.full((n, 1, 32, 32), 0.5, np.float32)
+    rel = rng.normal(size=(n, 1, 3)).astype(np.float32)
+    rel[:, 0, 1] = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 2.0, n)
+    best = np.where(rel[:, 0, 1] > 0, FORWARD, HOVER)
+    target = np.ones((n, 18), np.float32)
+    target[np.arange(n), best] = 1.05
+    data = Aggregate(n, (1, 32, 32), (1, 3), 18)
+    data.add(depth, rel, target, 0)
+    leads = {}
+    for weight in (0.0, 1.0):
+        torch.manual_seed(0)
+        agent = DQNAgent(NetworkConfig())
+        opt = torch.optim.Adam(agent.q.parameters(), lr=1e-3)
+        fit(agent, data, 30.0, 64, np.random.default_rng(0), opt, "huber", margin_weight=weight, margin=0.5)
+        with torch.no_grad():
+            q = agent.q(torch.as_tensor(depth), torch.as_tensor(rel)).numpy()
+        others = np.where(np.arange(18)[None, :] == best[:, None], -np.inf, q).max(axis=1)
+        leads[weight] = q[np.arange(n), best] - others
+    assert np.median(leads[1.0]) > 0.3 and np.all(leads[1.0] > 0)
+    assert np.median(leads[0.0]) < 0.1
+    with pytest.raises(ValueError, match="margin"):
+        fit(agent, data, 1.0, 64, rng, opt, "huber", margin_weight=-1.0)
+
+
+def test_the_fits_step_size_falls_geometrically_to_its_end_value() -> None:
+    base = dict(iterations=5, episodes=1, beta=0.5, epochs=1.0, lr=1e-3, temperature_m=0.1,
+                batch_size=8, buffer=8, seed=0)
+    flat = DaggerSettings(**base)
+    falling = DaggerSettings(**base, lr_end=1e-5)
+    assert [lr_at(flat, i) for i in range(5)] == [1e-3] * 5
+    assert [lr_at(falling, i) for i in range(5)] == pytest.approx([1e-3, 10**-3.5, 1e-4, 10**-4.5, 1e-5])

@@ -156,8 +156,23 @@ class TrainConfig:
     """Minibatch updates after each DAgger iteration, in place of ``imitation_epochs`` passes: a
     fit whose cost stays the same as the aggregate grows (the passes' cost grows with it). 0: the
     passes. Range: [0, 10^7]."""
+    imitation_margin_weight: Annotated[float, pydantic.Field(ge=0, le=100)] = 0.0
+    """Weight of DQfD's large-margin loss in the imitation fits (Hester et al. 2018): the label's
+    first choice should lead every other Q-value by ``imitation_margin``. 0 = off.
+    Range: [0, 100]."""
+    imitation_veto_weight: Annotated[float, pydantic.Field(ge=0, le=100)] = 0.0
+    """Weight of a hinge on the depth safety filter's verdicts in the imitation fits: the best
+    primitive the filter allowed in a labelled state should lead every one it vetoed by
+    ``imitation_margin`` (needs ``shield``, whose verdicts are kept with the labels). 0 = off.
+    Range: [0, 100]."""
+    imitation_margin: Annotated[float, pydantic.Field(gt=0, le=100)] = 1.0
+    """The lead (in Q) the large-margin loss asks of the label's first choice, and the veto hinge
+    of the best allowed primitive over the vetoed ones. Range: (0, 100]."""
     imitation_lr: Annotated[float, pydantic.Field(gt=0, le=1)] = 1e-3
     """Adam step size of the imitation fits. Range: (0, 1]."""
+    imitation_lr_end: Annotated[float, pydantic.Field(gt=0, le=1)] | None = None
+    """The fits' step size in the last DAgger iteration, reached geometrically from
+    ``imitation_lr``; None: ``imitation_lr`` throughout. Range: (0, 1]."""
     imitation_temperature_m: Annotated[float, pydantic.Field(gt=0, le=100)] = 0.1
     """Temperature (m of the teacher's cost) of the soft targets: softmax(-cost / T).
     Range: (0, 100]."""
@@ -251,6 +266,11 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'dagger_filtered_share': bad value {cfg.dagger_filtered_share!r}: "
             "flying behind the filter needs shield: true"
+        )
+    if cfg.imitation_veto_weight > 0 and not cfg.shield:
+        raise ConfigError(
+            f"{source}: key 'imitation_veto_weight': bad value {cfg.imitation_veto_weight!r}: "
+            "the veto hinge learns from the filter's verdicts and needs shield: true"
         )
     if cfg.device != "cpu":
         import torch

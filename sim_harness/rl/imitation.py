@@ -13,9 +13,11 @@ Iteration ``i`` (0, 1, ...) of :func:`dagger`:
    (:class:`sim_harness.rl.filter_teacher.FilterTeacher`: a frozen network behind the depth safety
    filter; its Q-values with the vetoed primitives pushed down).
 3. **Fit** the network to the aggregate (``imitation_epochs`` passes, or ``imitation_updates``
-   minibatches whatever its size, of ``batch_size`` each, Adam at ``imitation_lr``): its
+   minibatches whatever its size, of ``batch_size`` each, Adam at ``imitation_lr``, falling to
+   ``imitation_lr_end`` by the last iteration when that is set): its
    Q-values as logits by cross-entropy to soft targets, or its Q-values to Q labels by the Huber
-   loss (the teacher's ``loss``).
+   loss (the teacher's ``loss``), optionally plus DQfD's large-margin loss towards the label's
+   first choice (``imitation_margin_weight``).
 
 The network is the one the RL loop and the daemon use, unchanged: the greedy action is the
 arg-max of the same 18 outputs, and the order of the others is the teacher's, which is what the
@@ -39,7 +41,10 @@ from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.world import World
 
-__all__ = ["Aggregate", "DaggerSettings", "Labeller", "collect", "dagger", "fit"]
+__all__ = [
+    "Aggregate", "DaggerSettings", "Labeller", "collect", "dagger", "fit", "lr_at", "margin_loss",
+    "veto_loss",
+]
 
 log = structlog.get_logger(__name__)
 
@@ -59,6 +64,10 @@ class DaggerSettings:
     seed: int
     filtered_share: float = 0.0
     updates: int = 0
+    margin_weight: float = 0.0
+    margin: float = 1.0
+    lr_end: float | None = None
+    veto_weight: float = 0.0
 
 
 class Aggregate:
@@ -75,6 +84,8 @@ class Aggregate:
         self.depth = np.zeros((capacity, *depth_shape), dtype=np.float16)
         self.rel = np.zeros((capacity, *rel_shape), dtype=np.float32)
         self.target = np.zeros((capacity, n_actions), dtype=np.float32)
+        self.allowed = np.ones((capacity, n_actions), dtype=bool)
+        """The primitives the env's depth safety filter allowed in each state (all when it is off)."""
         self.iteration = np.zeros(capacity, dtype=np.int32)
         """The DAgger iteration each row was collected in."""
         self.size = 0
@@ -83,14 +94,18 @@ class Aggregate:
     def __len__(self) -> int:
         return self.size
 
-    def add(self, depth: NDArray, rel: NDArray, target: NDArray, iteration: int) -> None:
+    def add(self, depth: NDArray, rel: NDArray, target: NDArray, iteration: int,
+            allowed: NDArray[np.bool_] | None = None) -> None:
         n = depth.shape[0]
         if not (rel.shape[0] == n and target.shape[0] == n):
             raise ValueError("depth, rel and target need the same number of rows")
+        if allowed is not None and allowed.shape != target.shape:
+            raise ValueError(f"allowed {allowed.shape} and target {target.shape} differ in shape")
         idx = (self._next + np.arange(n)) % self.capacity
         self.depth[idx] = depth
         self.rel[idx] = rel
         self.target[idx] = target
+        self.allowed[idx] = True if allowed is None else allowed
         self.iteration[idx] = iteration
         self._next = int((self._next + n) % self.capacity)
         self.size = min(self.capacity, self.size + n)
@@ -128,7 +143,7 @@ def collect(
     depth, rel = env.depth, env.rel
     while finished < episodes:
         target, actions = teacher.label(env, depth, rel, temperature_m)
-        data.add(depth, rel, target, iteration)
+        data.add(depth, rel, target, iteration, env.allowed)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
             if own.any():
@@ -143,16 +158,44 @@ def collect(
     return counts
 
 
+def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float) -> torch.Tensor:
+    """The large-margin classification loss of DQfD (Hester et al. 2018), batch mean:
+    max_a [Q(s, a) + ``margin`` if a is not the expert's action] - Q(s, a_E). Zero where the
+    expert's action ``expert`` (N,) leads every other by at least ``margin``."""
+    penalty = torch.full_like(q, float(margin))
+    penalty.scatter_(1, expert[:, None], 0.0)
+    return ((q + penalty).max(dim=1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
+
+
+def veto_loss(q: torch.Tensor, allowed: torch.Tensor, margin: float) -> torch.Tensor:
+    """Hinge on the filter's verdicts, batch mean: max(0, max Q of a vetoed primitive + ``margin``
+    - max Q of an allowed one), over the rows with both (0 if none): the network's first choice
+    should be one the filter allows, by ``margin``, whichever of the allowed it is."""
+    some = allowed.any(dim=1) & ~allowed.all(dim=1)
+    if not bool(some.any()):
+        return q.sum() * 0.0
+    q, allowed = q[some], allowed[some]
+    low = torch.finfo(q.dtype).min
+    best_allowed = q.masked_fill(~allowed, low).max(dim=1).values
+    best_vetoed = q.masked_fill(allowed, low).max(dim=1).values
+    return F.relu(best_vetoed + float(margin) - best_allowed).sum() / some.numel()
+
+
 def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
-        optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy", updates: int = 0
+        optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy", updates: int = 0,
+        margin_weight: float = 0.0, margin: float = 1.0, veto_weight: float = 0.0
         ) -> tuple[float, float]:
     """``epochs`` passes (fractions allowed), or ``updates`` minibatches when > 0, of cross-entropy
     between softmax(Q) and the targets (``loss_kind`` "cross_entropy"), or of the Huber loss
-    between Q and the targets ("huber"); returns the mean loss and the share of the last tenth's
-    samples whose arg-max Q is the teacher's first choice. The target network is set to the
-    result."""
+    between Q and the targets ("huber"), plus ``margin_weight`` times :func:`margin_loss` towards
+    the targets' arg-max and ``veto_weight`` times :func:`veto_loss` on the filter's verdicts
+    kept with them; returns the mean loss and the share of the last tenth's samples whose
+    arg-max Q is the teacher's first choice. The target network is set to the result."""
     if loss_kind not in ("cross_entropy", "huber"):
         raise ValueError(f"loss_kind must be 'cross_entropy' or 'huber', got {loss_kind!r}")
+    if not (margin_weight >= 0 and veto_weight >= 0 and margin > 0):
+        raise ValueError(f"need margin_weight >= 0, veto_weight >= 0 and margin > 0, got "
+                         f"{margin_weight!r}, {veto_weight!r}, {margin!r}")
     n_batches = updates if updates > 0 else max(1, round(epochs * len(data) / batch_size))
     losses: list[float] = []
     agree: list[float] = []
@@ -167,6 +210,11 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
             loss = F.smooth_l1_loss(q, target)
         else:
             loss = -(target * F.log_softmax(q, dim=1)).sum(dim=1).mean()
+        if margin_weight > 0:
+            loss = loss + margin_weight * margin_loss(q, target.argmax(dim=1), margin)
+        if veto_weight > 0:
+            allowed = torch.as_tensor(data.allowed[idx], device=q.device)
+            loss = loss + veto_weight * veto_loss(q, allowed, margin)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(agent.q.parameters(), 10.0)
@@ -176,6 +224,15 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
     agent.target.load_state_dict(agent.q.state_dict())
     last = max(1, n_batches // 10)
     return float(np.mean(losses)), float(np.mean(agree[-last:]))
+
+
+def lr_at(settings: DaggerSettings, iteration: int) -> float:
+    """The fit's step size in ``iteration``: ``lr`` throughout, or with ``lr_end`` set, from
+    ``lr`` in the first iteration to ``lr_end`` in the last, geometrically."""
+    s = settings
+    if s.lr_end is None or s.iterations < 2:
+        return s.lr
+    return float(s.lr * (s.lr_end / s.lr) ** (iteration / (s.iterations - 1)))
 
 
 def dagger(
@@ -204,6 +261,8 @@ def dagger(
     t0 = time.monotonic()
     for it in range(s.iterations):
         beta = s.beta**it
+        for group in optimizer.param_groups:
+            group["lr"] = lr_at(s, it)
         agent.q.eval()
         for env, (cfg, _) in zip(envs, scaled, strict=True):
             counts = collect(env, teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
@@ -212,7 +271,8 @@ def dagger(
                 "iteration": it, "beta": round(beta, 6), "scale_m": cfg.primitives.scale_m,
                 "outcomes": counts, "dataset": len(data),
             })
-        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, teacher.loss, s.updates)
+        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, teacher.loss, s.updates,
+                              s.margin_weight, s.margin, s.veto_weight)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["wall_s"] = round(time.monotonic() - t0, 2)

@@ -219,6 +219,8 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         epochs=cfg.imitation_epochs, lr=cfg.imitation_lr, temperature_m=cfg.imitation_temperature_m,
         batch_size=cfg.batch_size, buffer=cfg.imitation_buffer, seed=cfg.seed,
         filtered_share=cfg.dagger_filtered_share, updates=cfg.imitation_updates,
+        margin_weight=cfg.imitation_margin_weight, margin=cfg.imitation_margin,
+        lr_end=cfg.imitation_lr_end, veto_weight=cfg.imitation_veto_weight,
     )
     records = dagger(agent, scaled, teacher, settings, cfg.n_envs)
     (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
