@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from quadnav_onboard.daemon.testing import constant_action_checkpoint
@@ -23,6 +24,22 @@ def write_straight_world(directory: Path, length_m: float, height_m: float = 1.5
         "bounds: {floor_z: 0.0, ceiling_z: 5.0}\nobstacles: []\n"
     )
     return path
+
+
+def side_rule_inputs(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` network inputs (depth history 1, position history 1) for fits of a rule a network can
+    learn: a flat depth image and a random setpoint vector whose y is at least 0.5 m from 0;
+    (depth, rel, whether the setpoint is to the left)."""
+    depth = np.full((n, 1, 32, 32), 0.5, np.float32)
+    rel = rng.normal(size=(n, 1, 3)).astype(np.float32)
+    rel[:, 0, 1] = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 2.0, n)  # clear of the boundary
+    return depth, rel, rel[:, 0, 1] > 0
+
+
+@pytest.fixture(scope="session")
+def side_rule() -> Callable[[np.random.Generator, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`side_rule_inputs`."""
+    return side_rule_inputs
 
 
 @pytest.fixture(scope="session")

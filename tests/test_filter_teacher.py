@@ -97,15 +97,13 @@ def test_collect_with_the_filter_teacher_labels_every_state_the_expert_flew(tmp_
     assert kept[np.arange(len(data)), labels].all()  # the label's first choice was allowed
 
 
-def test_huber_fit_learns_q_labels() -> None:
+def test_huber_fit_learns_q_labels(side_rule) -> None:
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     agent = DQNAgent(NetworkConfig())
     data = Aggregate(256, (1, 32, 32), (1, 3), 18)
-    depth = np.full((256, 1, 32, 32), 0.5, np.float32)
-    rel = rng.normal(size=(256, 1, 3)).astype(np.float32)
-    rel[:, 0, 1] = rng.choice([-1.0, 1.0], 256) * rng.uniform(0.5, 2.0, 256)
-    best = np.where(rel[:, 0, 1] > 0, FORWARD, 0)
+    depth, rel, left = side_rule(rng, 256)
+    best = np.where(left, FORWARD, 0)
     target = np.zeros((256, 18), np.float32)
     target[np.arange(256), best] = 2.0
     data.add(depth, rel, target, 0)
@@ -182,16 +180,14 @@ def test_veto_loss_is_zero_only_where_an_allowed_primitive_leads_every_vetoed_on
     assert float(veto_loss(q, none_vetoed, 1.0)) == 0.0
 
 
-def test_the_veto_hinge_makes_the_students_first_choice_one_the_filter_allows() -> None:
+def test_the_veto_hinge_makes_the_students_first_choice_one_the_filter_allows(side_rule) -> None:
     """Q labels that rank a vetoed primitive first by a hair (as a label from a wrong expert
     would): the Huber fit alone copies that order; with the hinge, the student's first choice is
     an allowed primitive."""
     rng = np.random.default_rng(0)
     n = 256
-    depth = np.full((n, 1, 32, 32), 0.5, np.float32)
-    rel = rng.normal(size=(n, 1, 3)).astype(np.float32)
-    rel[:, 0, 1] = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 2.0, n)
-    vetoed = np.where(rel[:, 0, 1] > 0, FORWARD, 0)
+    depth, rel, left = side_rule(rng, n)
+    vetoed = np.where(left, FORWARD, 0)
     target = np.ones((n, 18), np.float32)
     target[np.arange(n), vetoed] = 1.05
     allowed = np.ones((n, 18), bool)

@@ -80,15 +80,13 @@ def test_aggregate_overwrites_the_oldest_past_capacity() -> None:
     assert sorted(data.iteration.tolist()) == [0, 1, 1, 2, 2]
 
 
-def test_fit_learns_the_labels() -> None:
+def test_fit_learns_the_labels(side_rule) -> None:
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     agent = DQNAgent(NetworkConfig())
     data = Aggregate(256, (1, 32, 32), (1, 3), 18)
-    depth = np.full((256, 1, 32, 32), 0.5, np.float32)
-    rel = rng.normal(size=(256, 1, 3)).astype(np.float32)
-    rel[:, 0, 1] = rng.choice([-1.0, 1.0], 256) * rng.uniform(0.5, 2.0, 256)  # clear of the boundary
-    label = np.where(rel[:, 0, 1] > 0, FORWARD, HOVER)  # a rule of the position input
+    depth, rel, left = side_rule(rng, 256)
+    label = np.where(left, FORWARD, HOVER)  # a rule of the position input
     target = np.full((256, 18), 0.01 / 17, np.float32)
     target[np.arange(256), label] = 0.99
     data.add(depth, rel, target, 0)
@@ -149,16 +147,14 @@ def test_margin_loss_is_zero_only_where_the_experts_action_leads_by_the_margin()
     assert float(margin_loss(q, expert, 1.0)) == pytest.approx(4.5 / 3)
 
 
-def test_the_margin_term_makes_the_huber_fit_separate_the_first_choice() -> None:
+def test_the_margin_term_makes_the_huber_fit_separate_the_first_choice(side_rule) -> None:
     """Huber labels whose first choice leads by only 0.05: the fit alone gets the values near
     but leaves the order to chance; with the margin term the first choice leads by about the
     margin."""
     rng = np.random.default_rng(0)
     n = 256
-    depth = np.full((n, 1, 32, 32), 0.5, np.float32)
-    rel = rng.normal(size=(n, 1, 3)).astype(np.float32)
-    rel[:, 0, 1] = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 2.0, n)
-    best = np.where(rel[:, 0, 1] > 0, FORWARD, HOVER)
+    depth, rel, left = side_rule(rng, n)
+    best = np.where(left, FORWARD, HOVER)
     target = np.ones((n, 18), np.float32)
     target[np.arange(n), best] = 1.05
     data = Aggregate(n, (1, 32, 32), (1, 3), 18)

@@ -169,8 +169,8 @@ def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float) -> torch.T
 
 def veto_loss(q: torch.Tensor, allowed: torch.Tensor, margin: float) -> torch.Tensor:
     """Hinge on the filter's verdicts, batch mean: max(0, max Q of a vetoed primitive + ``margin``
-    - max Q of an allowed one), over the rows with both (0 if none): the network's first choice
-    should be one the filter allows, by ``margin``, whichever of the allowed it is."""
+    - max Q of an allowed one) in each row that has both, 0 in the others: the network's first
+    choice should be one the filter allows, by ``margin``, whichever of the allowed it is."""
     some = allowed.any(dim=1) & ~allowed.all(dim=1)
     if not bool(some.any()):
         return q.sum() * 0.0
