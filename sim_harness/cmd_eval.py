@@ -65,6 +65,22 @@ def flight_setup(
     return dataclasses.replace(env_cfg, shield=shield), flown, limits
 
 
+def _layouts(env_cfg: EnvConfig, rooms: list[World], limits: FlightLimits, n: int, seed: int) -> list[World]:
+    """``n`` random layouts of each room, each with a route that keeps the filter's margins."""
+    from sim_harness.lab_layouts import lab_layouts, route_admits
+    from sim_harness.rl.evaluate import known_room
+
+    out: list[World] = []
+    prims = env_cfg.primitives.build()
+    altitude = (limits.altitude_floor_m, limits.altitude_ceiling_m)
+    for room in rooms:
+        shield = known_room(env_cfg.shield, room, limits)
+        admits = route_admits(lambda _w, s=shield: s, prims, env_cfg.goal_radius_m, env_cfg.max_steps,
+                              altitude, env_cfg.reward.max_deviation_m)
+        out += lab_layouts(room, n, seed, admits)
+    return out
+
+
 def _positive(text: str) -> float:
     value = float(text)
     if not (value > 0 and math.isfinite(value)):
@@ -156,6 +172,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=4242,
         help="seed of the generated worlds (default 4242; training uses 20261124)",
     )
+    p.add_argument(
+        "--layouts",
+        type=_count,
+        default=None,
+        metavar="N",
+        help="with --flight-config: fly N >= 1 random box layouts of each --world's room instead of "
+        "the world (sim_harness/lab_layouts.py: 0-2 boxes near the path, each with a sequence of "
+        "primitives that keeps the filter's margins to the goal); see --layout-seed",
+    )
+    p.add_argument(
+        "--layout-seed",
+        type=_seed,
+        default=4242,
+        help="seed of the layouts (default 4242; recipes/lab.yaml trains on 20261203)",
+    )
     p.add_argument("--trials", type=_count, default=5, help="trials per world (default 5, as in the paper)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the start jitter (default 0)")
     p.add_argument(
@@ -216,6 +247,9 @@ def run(args: argparse.Namespace) -> int:
     if args.world and args.procedural is not None:
         print("quadnav-sim eval: give --world or --procedural N, not both", file=sys.stderr)
         return 2
+    if args.layouts is not None and not (args.flight_config and args.world):
+        print("quadnav-sim eval: --layouts N needs --flight-config and the room as --world", file=sys.stderr)
+        return 2
     if args.flight_config and (args.primitive_scale is not None or args.max_steps is not None):
         print("quadnav-sim eval: --flight-config sets the primitives and the step limit: not with "
               "--primitive-scale or --max-steps", file=sys.stderr)
@@ -238,6 +272,8 @@ def run(args: argparse.Namespace) -> int:
         limits = None
         if args.flight_config:
             env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
+            if args.layouts is not None:
+                worlds = _layouts(env_cfg, worlds, limits, args.layouts, args.layout_seed)
         else:
             shield = shield_from_flags(policy, args)
             jitter = 0.5 if args.start_jitter_m is None else args.start_jitter_m
@@ -289,6 +325,8 @@ def run(args: argparse.Namespace) -> int:
             "primitive_scale_m": env_cfg.primitives.scale_m,
             "shield": dataclasses.asdict(env_cfg.shield),
             "flight_config": args.flight_config,
+            "layouts": args.layouts,
+            "layout_seed": args.layout_seed if args.layouts is not None else None,
             "depth_noise": None if noise is None else dataclasses.asdict(noise),
             "known_rooms": True,
             "worlds": [str(p) for p in paths],

@@ -119,6 +119,8 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.imitation_updates", "zero"): "the fit runs imitation_epochs passes instead",
     ("train.imitation_margin_weight", "zero"): "the fit has no large-margin term",
     ("train.imitation_veto_weight", "zero"): "the fit has no hinge on the filter's verdicts",
+    ("train.lab_layouts", "zero"): "no lab layouts (DAgger flies imitation_scales only)",
+    ("train.lab_layout_seed", "zero"): "a seed",
 }
 """Values (key pattern, value kind) a numeric field means something by: each is accepted by the
 field's own range; a check across fields (a geofence corner above its opposite, a ceiling below

@@ -198,6 +198,20 @@ class TrainConfig:
     """Share of DAgger's envs in which the network flies behind the depth safety filter (as the
     product does) when it is the one flying; the rest fly it alone. Needs ``shield`` when > 0.
     Range: [0, 1]."""
+    lab_layouts: Annotated[int, pydantic.Field(ge=0, le=10_000)] = 0
+    """Random box layouts of the lab ``lab_world`` (sim_harness.lab_layouts: 0-2 boxes near the
+    path, each layout kept only if a sequence of primitives keeping the filter's margins reaches
+    the goal) that DAgger also flies, under ``lab_flight_config`` as ``quadnav-sim eval
+    --flight-config`` flies a world, with the D435-like depth noise on; its teacher stops at the
+    flight's deviation limit and goal radius. 0 = none. Range: [0, 10 000]."""
+    lab_world: str = ""
+    """World file (or a shipped world's name) of the lab's room for ``lab_layouts``; its obstacles
+    stay, its path is replaced by the flight config's waypoints when it sets them."""
+    lab_flight_config: str = ""
+    """Flight config (e.g. config/flight.yaml) whose mission, primitives, filter, deviation limit,
+    geofence and altitude band the lab layouts are flown under."""
+    lab_layout_seed: _Seed = 20261203
+    """Seed of the lab layouts (fixed: the layouts are part of the recipe). Range: [0, 2**32)."""
     teacher_lookahead: Annotated[int, pydantic.Field(ge=1, le=2)] = 2
     """Primitives the teacher flies from a state: 1, or 2 (the second only to find dead ends).
     Range: [1, 2]."""
@@ -271,6 +285,16 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'imitation_veto_weight': bad value {cfg.imitation_veto_weight!r}: "
             "the veto hinge learns from the filter's verdicts and needs shield: true"
+        )
+    if cfg.lab_layouts > 0 and not (cfg.lab_world and cfg.lab_flight_config and cfg.dagger_iterations > 0):
+        raise ConfigError(
+            f"{source}: key 'lab_layouts': bad value {cfg.lab_layouts!r}: the lab layouts are "
+            "DAgger's: set lab_world, lab_flight_config and dagger_iterations > 0"
+        )
+    if cfg.dagger_iterations > 0 and not cfg.imitation_scales and cfg.lab_layouts == 0:
+        raise ConfigError(
+            f"{source}: key 'imitation_scales': bad value []: DAgger needs a scale to fly "
+            "(or lab_layouts)"
         )
     if cfg.device != "cpu":
         import torch

@@ -39,9 +39,11 @@ __all__ = [
     "EvalRow",
     "FlightLimits",
     "GreedyFn",
+    "NoisyDepthEnv",
     "env_config_for_policy",
     "evaluate",
     "flight_eval_setup",
+    "flight_setup_for",
     "format_table",
     "known_room",
     "override_shield",
@@ -161,27 +163,36 @@ def known_room(shield: ShieldConfig, world: World, limits: FlightLimits | None =
 def flight_eval_setup(
     policy: Policy, flight: FlightConfig, worlds: Sequence[World], start_jitter_m: float | None = None
 ) -> tuple[EnvConfig, list[World], FlightLimits]:
-    """The env, worlds and stop conditions of ``flight``'s mission flown in ``worlds``: its
-    primitives (else the checkpoint's), filter (else the checkpoint's, its memory kept in distance
-    flown), moving-setpoint speed, step limit, goal radius, deviation limit, geofence and altitude
-    band; its waypoints (when set) replace each world's path, as in a dry run. The start jitter
-    defaults to the mission's ``start_tolerance_m`` (where the flight begins)."""
+    """The env, worlds and stop conditions of ``flight``'s mission flown in ``worlds`` by
+    ``policy``: :func:`flight_setup_for` from the env the checkpoint was trained for."""
+    shield = shield_config_from_meta(policy.checkpoint.meta)
+    base = env_config_for_policy(policy, shield=shield)
+    return flight_setup_for(base, flight, worlds, start_jitter_m)
+
+
+def flight_setup_for(
+    trained: EnvConfig, flight: FlightConfig, worlds: Sequence[World], start_jitter_m: float | None = None
+) -> tuple[EnvConfig, list[World], FlightLimits]:
+    """The env, worlds and stop conditions of ``flight``'s mission flown in ``worlds`` by a network
+    trained in ``trained``: the flight's primitives (else the trained ones), filter (else the
+    trained one, its memory kept in distance flown), moving-setpoint speed, step limit, goal
+    radius, deviation limit, geofence and altitude band; its waypoints (when set) replace each
+    world's path, as in a dry run. The start jitter defaults to the mission's
+    ``start_tolerance_m`` (where the flight begins); every flight starts at the path's start."""
     m, s = flight.mission, flight.safety
-    trained = parse_config(PrimitiveConfig, policy.checkpoint.primitives, source="checkpoint.primitives")
-    prims = flight.primitives or trained
-    shield = flight.shield if flight.shield is not None else shield_config_from_meta(policy.checkpoint.meta)
-    shield = shield_at_scale(shield, trained.scale_m, prims.scale_m)  # as the flight's decider does
-    base = env_config_for_policy(
-        policy,
+    prims = flight.primitives or trained.primitives
+    shield = flight.shield if flight.shield is not None else trained.shield
+    # as the flight's decider does
+    shield = shield_at_scale(shield, trained.primitives.scale_m, prims.scale_m)
+    env_cfg = dataclasses.replace(
+        trained,
         max_steps=m.max_steps,
         start_jitter_m=m.start_tolerance_m if start_jitter_m is None else start_jitter_m,
+        random_start_prob=0.0,
         shield=shield,
-    )
-    env_cfg = dataclasses.replace(
-        base,
         primitives=prims,
         goal_radius_m=m.goal_radius_m,
-        reward=dataclasses.replace(base.reward, max_deviation_m=s.max_deviation_m),
+        reward=dataclasses.replace(trained.reward, max_deviation_m=s.max_deviation_m),
     )
     flown = []
     for w in worlds:
@@ -198,7 +209,7 @@ def flight_eval_setup(
     return env_cfg, flown, limits
 
 
-class _NoisyDepthEnv(VecQuadNavEnv):
+class NoisyDepthEnv(VecQuadNavEnv):
     """The env with the D435-like noise model on the sim camera's frames before preprocessing (at
     their width: :func:`sim_harness.noise.noise_at_width`)."""
 
@@ -272,7 +283,7 @@ def evaluate(
         if depth_noise is None:
             env = VecQuadNavEnv([world], trials, seed=w_seed, config=cfg, autoreset=False)
         else:
-            env = _NoisyDepthEnv([world], trials, seed=w_seed, config=cfg, autoreset=False,
+            env = NoisyDepthEnv([world], trials, seed=w_seed, config=cfg, autoreset=False,
                                  noise=depth_noise, noise_seed=w_seed + 7919)
         depth, rel = env.reset()
         outcome = np.full(trials, None, dtype=object)

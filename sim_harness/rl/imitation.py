@@ -27,7 +27,7 @@ safety filter falls back on when it vetoes the first choice.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -42,8 +42,8 @@ from sim_harness.rl.agent import DQNAgent
 from sim_harness.world import World
 
 __all__ = [
-    "Aggregate", "DaggerSettings", "Labeller", "collect", "dagger", "fit", "lr_at", "margin_loss",
-    "veto_loss",
+    "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "collect", "dagger", "fit", "lr_at",
+    "margin_loss", "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -235,24 +235,35 @@ def lr_at(settings: DaggerSettings, iteration: int) -> float:
     return float(s.lr * (s.lr_end / s.lr) ** (iteration / (s.iterations - 1)))
 
 
-def dagger(
-    agent: DQNAgent,
-    scaled: Sequence[tuple[EnvConfig, Sequence[World]]],
-    teacher: Labeller,
-    settings: DaggerSettings,
-    n_envs: int,
-) -> list[dict]:
-    """Run DAgger on ``agent.q`` over the (env config, worlds) pairs of ``scaled`` (one per
-    primitive scale); returns one record per iteration and scale (outcomes, dataset size, loss,
-    wall time)."""
+@dataclass(frozen=True)
+class DaggerTask:
+    """One set of envs DAgger flies: their config, worlds and teacher (``make_env`` builds them,
+    e.g. with depth noise; default :class:`~sim_harness.env.VecQuadNavEnv`)."""
+
+    config: EnvConfig
+    worlds: Sequence[World]
+    teacher: Labeller
+    make_env: Callable[..., VecQuadNavEnv] = VecQuadNavEnv
+
+
+def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSettings, n_envs: int) -> list[dict]:
+    """Run DAgger on ``agent.q`` over ``tasks`` (e.g. one per primitive scale, and a lab's
+    layouts under its flight config); returns one record per iteration and task (outcomes,
+    dataset size, loss, wall time). Every task's teacher must fit by the same loss."""
     s = settings
-    env0 = scaled[0][0]
+    if not tasks:
+        raise ValueError("dagger needs at least one task")
+    losses = {t.teacher.loss for t in tasks}
+    if len(losses) != 1:
+        raise ValueError(f"dagger: the tasks' teachers fit by different losses: {sorted(losses)}")
+    (loss_kind,) = losses
+    env0 = tasks[0].config
     rng = np.random.default_rng(s.seed + 7)
     n_actions = env0.primitives.build().n_actions
     data = Aggregate(s.buffer, (env0.depth_history, 32, 32), (env0.position_history, 3), n_actions)
     envs = [
-        VecQuadNavEnv(list(worlds), n_envs, seed=s.seed + 101 * (k + 1), config=cfg)
-        for k, (cfg, worlds) in enumerate(scaled)
+        t.make_env(list(t.worlds), n_envs, seed=s.seed + 101 * (k + 1), config=t.config)
+        for k, t in enumerate(tasks)
     ]
     for env in envs:
         env.reset()
@@ -264,14 +275,15 @@ def dagger(
         for group in optimizer.param_groups:
             group["lr"] = lr_at(s, it)
         agent.q.eval()
-        for env, (cfg, _) in zip(envs, scaled, strict=True):
-            counts = collect(env, teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
+        for env, task in zip(envs, tasks, strict=True):
+            counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
                              s.filtered_share)
             records.append({
-                "iteration": it, "beta": round(beta, 6), "scale_m": cfg.primitives.scale_m,
+                "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
+                "worlds": len(task.worlds),
                 "outcomes": counts, "dataset": len(data),
             })
-        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, teacher.loss, s.updates,
+        loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, loss_kind, s.updates,
                               s.margin_weight, s.margin, s.veto_weight)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)

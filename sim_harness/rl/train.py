@@ -39,7 +39,8 @@ from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import TrainConfig, load_train_config, read_config_file
 from sim_harness.rl.evaluate import evaluate, scores
 from sim_harness.rl.filter_teacher import FilterTeacher
-from sim_harness.rl.imitation import DaggerSettings, Labeller, dagger
+from sim_harness.rl.imitation import DaggerSettings, DaggerTask, Labeller, dagger
+from sim_harness.rl.lab_task import LabSetup, lab_setup, lab_task
 from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, ReplayBuffer
 from sim_harness.rl.runlog import (
     git_commit,
@@ -199,10 +200,12 @@ def _evaluator(
 
 
 def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World],
-            run_dir: Path) -> list[dict[str, Any]]:
+            run_dir: Path, lab: LabSetup | None = None) -> list[dict[str, Any]]:
     """DAgger from the ``imitation_teacher`` (``dagger_*``, ``imitation_*``, ``teacher_*``,
     ``filter_*`` fields) on ``agent``, which holds ``init_model``'s weights when one is given (the
-    filter teacher's expert); writes ``dagger.json`` and ``checkpoints/imitation.pt`` in ``run_dir``."""
+    filter teacher's expert), over ``worlds`` at each of ``imitation_scales`` and, with ``lab``,
+    ``lab_layouts`` layouts of that lab's room under its flight config; writes ``dagger.json`` and
+    ``checkpoints/imitation.pt`` in ``run_dir``."""
     teacher: Labeller
     if cfg.imitation_teacher == "filter":
         teacher = FilterTeacher(agent.q, cfg.filter_veto_margin, device=cfg.device)
@@ -210,10 +213,14 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         teacher = Teacher(TeacherConfig(
             grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead
         ))
-    scaled = [
-        at_primitive_scale(env_cfg, worlds, s) if s != REFERENCE_SCALE_M else (env_cfg, list(worlds))
-        for s in cfg.imitation_scales
-    ]
+    tasks = []
+    for s in cfg.imitation_scales:
+        scaled_cfg, scaled = (
+            at_primitive_scale(env_cfg, worlds, s) if s != REFERENCE_SCALE_M else (env_cfg, list(worlds))
+        )
+        tasks.append(DaggerTask(scaled_cfg, scaled, teacher))
+    if lab is not None:
+        tasks.append(lab_task(cfg, lab, teacher if cfg.imitation_teacher == "filter" else None))
     settings = DaggerSettings(
         iterations=cfg.dagger_iterations, episodes=cfg.dagger_episodes, beta=cfg.dagger_beta,
         epochs=cfg.imitation_epochs, lr=cfg.imitation_lr, temperature_m=cfg.imitation_temperature_m,
@@ -222,7 +229,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         margin_weight=cfg.imitation_margin_weight, margin=cfg.imitation_margin,
         lr_end=cfg.imitation_lr_end, veto_weight=cfg.imitation_veto_weight,
     )
-    records = dagger(agent, scaled, teacher, settings, cfg.n_envs)
+    records = dagger(agent, tasks, settings, cfg.n_envs)
     (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
     extra = {"episodes": 0, "env_steps": 0, "env": _env_meta(env_cfg)}
     _save_model(run_dir / "checkpoints" / "imitation.pt", agent, cfg, env_cfg, extra)
@@ -264,6 +271,7 @@ def train(
     if cfg.primitive_scale_m != REFERENCE_SCALE_M:
         env_cfg, worlds = at_primitive_scale(env_cfg, worlds, cfg.primitive_scale_m)
     init = _init_checkpoint(cfg) if resume is None else None  # fails before a run directory exists
+    lab = lab_setup(cfg, env_config_for(cfg)) if cfg.lab_layouts > 0 and resume is None else None
     if resume is None:
         run_dir = make_run_dir(cfg.out_dir, cfg.name, cfg.seed)
         (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2), encoding="utf-8")
@@ -277,7 +285,7 @@ def train(
         agent.q.load_state_dict(init.model.state_dict())
         agent.target.load_state_dict(init.model.state_dict())
     if cfg.dagger_iterations > 0 and resume is None:
-        imitate(agent, cfg, env_config_for(cfg), worlds_ref, run_dir)
+        imitate(agent, cfg, env_config_for(cfg), worlds_ref, run_dir, lab)
         if cfg.imitation_only:
             extra = {"episodes": 0, "env_steps": 0, "env": _env_meta(env_cfg)}
             final = _save_model(run_dir / "checkpoints" / "final.pt", agent, cfg, env_cfg, extra)
