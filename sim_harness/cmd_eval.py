@@ -67,18 +67,9 @@ def flight_setup(
 
 def _layouts(env_cfg: EnvConfig, rooms: list[World], limits: FlightLimits, n: int, seed: int) -> list[World]:
     """``n`` random layouts of each room, each with a route that keeps the filter's margins."""
-    from sim_harness.lab_layouts import lab_layouts, route_admits
-    from sim_harness.rl.evaluate import known_room
+    from sim_harness.rl.lab_task import flight_layouts
 
-    out: list[World] = []
-    prims = env_cfg.primitives.build()
-    altitude = (limits.altitude_floor_m, limits.altitude_ceiling_m)
-    for room in rooms:
-        shield = known_room(env_cfg.shield, room, limits)
-        admits = route_admits(lambda _w, s=shield: s, prims, env_cfg.goal_radius_m, env_cfg.max_steps,
-                              altitude, env_cfg.reward.max_deviation_m)
-        out += lab_layouts(room, n, seed, admits)
-    return out
+    return [w for room in rooms for w in flight_layouts(room, env_cfg, limits, n, seed)]
 
 
 def _positive(text: str) -> float:

@@ -25,7 +25,7 @@ from sim_harness.rl.imitation import DaggerTask, Labeller
 from sim_harness.rl.teacher import Teacher, TeacherConfig
 from sim_harness.world import World, load_world, resolve_world_arg
 
-__all__ = ["LabSetup", "lab_setup", "lab_task"]
+__all__ = ["LabSetup", "flight_layouts", "lab_setup", "lab_task"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,17 +53,25 @@ def lab_setup(cfg: TrainConfig, trained: EnvConfig) -> LabSetup:
     return LabSetup(dataclasses.replace(env_cfg, shield=shield), room, limits)
 
 
+def flight_layouts(room: World, env_cfg: EnvConfig, limits: FlightLimits, n: int, seed: int) -> list[World]:
+    """``n`` random layouts of ``room`` (reproducible from ``seed``) for the flight ``env_cfg`` and
+    ``limits`` (:func:`~sim_harness.rl.evaluate.flight_setup_for`), each with a sequence of its
+    primitives that keeps the margins of its filter knowing the room to the goal."""
+    shield = known_room(env_cfg.shield, room, limits)
+    admits = route_admits(
+        lambda _w: shield, env_cfg.primitives.build(), env_cfg.goal_radius_m, env_cfg.max_steps,
+        (limits.altitude_floor_m, limits.altitude_ceiling_m), env_cfg.reward.max_deviation_m,
+    )
+    return lab_layouts(room, n, seed, admits)
+
+
 def lab_task(cfg: TrainConfig, lab: LabSetup, teacher: Labeller | None = None) -> DaggerTask:
     """``cfg.lab_layouts`` layouts of ``lab``'s room and the DAgger task that flies them;
     ``teacher``: the labeller (default: the privileged teacher within the flight's limits)."""
-    env_cfg, limits = lab.config, lab.limits
+    env_cfg = lab.config
     shield = env_cfg.shield
     max_dev = env_cfg.reward.max_deviation_m  # the episode's stop: the flight's deviation limit
-    admits = route_admits(
-        lambda _w: shield, env_cfg.primitives.build(), env_cfg.goal_radius_m, env_cfg.max_steps,
-        (limits.altitude_floor_m, limits.altitude_ceiling_m), max_dev,
-    )
-    layouts = lab_layouts(lab.room, cfg.lab_layouts, cfg.lab_layout_seed, admits)
+    layouts = flight_layouts(lab.room, env_cfg, lab.limits, cfg.lab_layouts, cfg.lab_layout_seed)
     if teacher is None:
         teacher = Teacher(TeacherConfig(
             grid_m=min(cfg.teacher_grid_m, 0.1), margin_m=cfg.teacher_margin_m,
