@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from quadnav_onboard.frames import body_to_world
 from sim_harness.world import World, WorldError, parse_world, world_to_mapping
 
 __all__ = ["LayoutRanges", "lab_layouts", "random_layout", "route_admits"]
@@ -51,7 +52,7 @@ def _box_along(world: World, s: float, c: float, depth: float, width: float, hei
     path = world.path
     p = path.point_at(s)
     yaw = float(path.yaw_at(np.array([s]))[0])
-    left = np.array([-math.sin(yaw), math.cos(yaw), 0.0])
+    left = body_to_world(np.array([0.0, 1.0, 0.0]), yaw)  # the heading frame's y axis
     floor = world.floor_z_m if world.floor_z_m is not None else 0.0
     centre = p + c * left
     return {
