@@ -15,12 +15,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from quadnav_onboard.frames import body_to_world
 from sim_harness.world import World, WorldError, parse_world, world_to_mapping
+
+if TYPE_CHECKING:
+    from quadnav_onboard.primitives import PrimitiveSet
+    from quadnav_onboard.shield import ShieldConfig
 
 __all__ = ["LayoutRanges", "lab_layouts", "random_layout", "route_admits"]
 
@@ -114,7 +118,7 @@ def lab_layouts(template: World, n: int, seed: int, admits: Callable[[World], bo
 
 
 def route_admits(
-    shield_for: Callable[[World], Any], prims: Any, goal_radius_m: float, max_steps: int,
+    shield_for: Callable[[World], ShieldConfig], prims: PrimitiveSet, goal_radius_m: float, max_steps: int,
     altitude_m: tuple[float, float] | None, max_deviation_m: float | None,
 ) -> Callable[[World], bool]:
     """A test that a layout leaves a sequence of primitives from the start to the goal, each
