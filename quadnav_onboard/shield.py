@@ -628,7 +628,7 @@ def band_clearance(samples_world_m: ArrayLike, path: RoughPath, half_width_m: fl
     return half_width_m - path.deviation_m(samples_world_m).max(axis=-1)
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=256)  # a training env holds one band per world
 def band_path(waypoints_m: tuple[tuple[float, float, float], ...]) -> RoughPath:
     """The band's rough path, built once per filter config (its waypoints are a config value)."""
     try:

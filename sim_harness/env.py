@@ -103,6 +103,12 @@ class EnvConfig:
     shield: ShieldConfig = field(default_factory=ShieldConfig)
     """Depth safety filter (off = the paper): when on, ``allowed`` holds the primitives it lets
     the planner choose at the next decision."""
+    shield_band: bool = False
+    """The filter also keeps each world's deviation limit (``reward.max_deviation_m`` round its
+    rough path, the episode's ``"deviation"`` stop) as known space, as a flight's filter keeps
+    ``safety.max_deviation_m`` round the path it flies
+    (:meth:`~quadnav_onboard.shield.ShieldConfig.with_band`). Ignored when ``shield`` has a band
+    of its own or is off."""
 
 
 _VEC3 = ("setpoint_world_m", "rel_pos_body_m")
@@ -154,6 +160,11 @@ class VecQuadNavEnv:
         self.depth = np.ones((n, kd, OUT_SIZE, OUT_SIZE), dtype=np.float32)
         self.rel = np.zeros((n, kp, 3), dtype=np.float32)
         self.memory = PointMemory(n, config.shield) if config.shield.enabled else None
+        self._world_shields: list[ShieldConfig] | None = None
+        """Each world's filter, its deviation band known (``shield_band``); None: one for all."""
+        if self.memory is not None and config.shield_band and config.shield.band_waypoints_m is None:
+            half = config.reward.max_deviation_m
+            self._world_shields = [config.shield.with_band(w.path.waypoints_m, half) for w in self.worlds]
         self._floor_z = np.array([np.nan if w.floor_z_m is None else w.floor_z_m for w in self.worlds])
         """Each world's floor height (m; NaN: none), for the shield's ``known_floor``."""
         self.clearance_m = np.full((n, self.prims.n_actions), config.shield.search_radius_m)
@@ -192,11 +203,19 @@ class VecQuadNavEnv:
             self.memory.clear(ids)
         self.memory.add(ids, depth, self.pos_m[ids], yaw)
         mem = self.memory
-        self.allowed[ids], self.clearance_m[ids] = shield_verdict(
-            self.prims, mem.points[ids], mem.depth_m[ids], mem.pose[ids], self.cmd_pos_m[ids],
-            self.cmd_vel_m_s[ids], yaw, self.pos_m[ids], self.vel_m_s[ids], self.config.shield,
-            floor_z_m=self._floor_z[self.world_idx[ids]],
-        )
+        yaw = np.asarray(yaw)
+        if self._world_shields is None:
+            groups = [(self.config.shield, np.arange(len(ids)))]
+        else:  # each world's band: one check per world among ``ids``
+            w_of = self.world_idx[ids]
+            groups = [(self._world_shields[w], np.flatnonzero(w_of == w)) for w in np.unique(w_of)]
+        for shield, rows in groups:
+            sel = ids[rows]
+            self.allowed[sel], self.clearance_m[sel] = shield_verdict(
+                self.prims, mem.points[sel], mem.depth_m[sel], mem.pose[sel], self.cmd_pos_m[sel],
+                self.cmd_vel_m_s[sel], yaw[rows], self.pos_m[sel], self.vel_m_s[sel], shield,
+                floor_z_m=self._floor_z[self.world_idx[sel]],
+            )
 
     def _stop_at_contact(
         self, world: World, ids: NDArray[np.int64], collided: NDArray, trail: NDArray

@@ -3,6 +3,8 @@ shielded checkpoint flying the same shield in evaluation."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -10,6 +12,7 @@ import torch
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.policy import Policy, masked_argmax
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from quadnav_onboard.reward import RewardParams
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
@@ -38,6 +41,30 @@ def test_env_vetoes_forward_primitives_into_a_wall():
     env.reset()
     assert not env.allowed[:, FORWARD].any()
     assert env.allowed[:, HOVER].all()
+
+
+def test_knowing_each_worlds_band_the_filter_vetoes_primitives_that_would_end_at_the_deviation_stop():
+    level = _world([])  # path along x at 2 m
+    steep = parse_world({"name": "s", "path": {"waypoints": [[0, 0, 2], [6, 0, 8]]}, "obstacles": []}, "test")
+    narrow = EnvConfig(
+        start_jitter_m=0.0, shield=ShieldConfig(enabled=True), reward=RewardParams(max_deviation_m=0.6)
+    )
+    env = VecQuadNavEnv([level], 1, seed=0, config=narrow)
+    env.reset()
+    assert env.allowed.all()  # nothing seen, no band: every primitive flies
+    banded = dataclasses.replace(narrow, shield_band=True)
+    env = VecQuadNavEnv([level], 1, seed=0, config=banded)
+    env.reset()
+    allowed = set(np.flatnonzero(env.allowed[0]).tolist())
+    assert {FORWARD, HOVER} <= allowed
+    left, up_forward = DEFAULT_DIRECTIONS.index((0, 1, 0)), DEFAULT_DIRECTIONS.index((1, 0, 1))
+    assert left not in allowed and up_forward not in allowed  # 1 m off a 0.6 m band
+    env = VecQuadNavEnv([level, steep], 16, seed=0, config=banded)
+    env.reset()
+    on_steep = env.world_idx == 1
+    assert on_steep.any() and (~on_steep).any()
+    assert env.allowed[on_steep, up_forward].all()  # along the steep path: inside its own band
+    assert not env.allowed[~on_steep, up_forward].any()
 
 
 def test_requiring_seen_space_the_allowed_set_grows_as_the_camera_sees_more():

@@ -139,6 +139,10 @@ class TrainConfig:
     """Decisions whose depth points the shield remembers. Range: [1, 64]."""
     shield_require_seen: bool = False
     """The shield also vetoes primitives into space no remembered view saw to be free."""
+    shield_band: bool = False
+    """The shield also keeps each world's deviation limit (the episode's ``"deviation"`` stop
+    round its rough path) as known space, as the flight daemon's filter does round the path it
+    flies. With the filter teacher, primitives that would leave the band are labelled as vetoed."""
     dagger_iterations: Annotated[int, pydantic.Field(ge=0, le=1000)] = 0
     """Imitation of the privileged teacher before the RL episodes (beyond the paper;
     sim_harness.rl.imitation): DAgger iterations, each flying ``dagger_episodes`` episodes per

@@ -128,6 +128,7 @@ def env_config_for(cfg: TrainConfig) -> EnvConfig:
             memory_steps=cfg.shield_memory_steps,
             require_seen=cfg.shield_require_seen,
         ),
+        shield_band=cfg.shield_band,
     )
 
 
