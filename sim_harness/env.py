@@ -143,8 +143,9 @@ class VecQuadNavEnv:
         self.config = config
         self.autoreset = autoreset
         self.prims = config.primitives.build()
-        p = None if world_weights is None else np.asarray(world_weights, dtype=np.float64)
-        self._world_p = None if p is None else p / p.sum()
+        self._world_p: NDArray[np.float64] | None = None
+        if world_weights is not None:
+            self.set_world_weights(world_weights)
         self.rng = np.random.default_rng(seed)
         n_sub = max(1, round(self.prims.duration_s / config.quad.dt_s))
         self._u = (np.arange(1, n_sub + 1, dtype=np.float64) / n_sub)[:, None]  # (K, 1)
@@ -251,6 +252,16 @@ class VecQuadNavEnv:
         self.steps[chosen[ok]] = np.floor(arc[first[ok], pick] / step_m).astype(np.int64)
 
     # -- API -------------------------------------------------------------------------------------
+    def set_world_weights(self, weights: Sequence[float] | NDArray) -> None:
+        """From the next reset on, pick each episode's world in proportion to ``weights`` (one
+        finite weight >= 0 per world, not all 0)."""
+        p = np.asarray(weights, dtype=np.float64)
+        if p.shape != (len(self.worlds),):
+            raise ValueError(f"world weights: need {len(self.worlds)} (one per world), got shape {p.shape}")
+        if not (np.isfinite(p).all() and (p >= 0).all() and p.sum() > 0):
+            raise ValueError("world weights must be finite, >= 0 and not all 0")
+        self._world_p = p / p.sum()
+
     def reset(self, mask: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Start new episodes in the envs of ``mask`` (all if None); returns the observations."""
         mask = np.ones(self.n_envs, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)

@@ -198,6 +198,16 @@ class TrainConfig:
     filter_veto_margin: Annotated[float, pydantic.Field(gt=0, le=100)] = 1.0
     """With the "filter" teacher: how far (in Q) below the lowest allowed primitive a vetoed one is
     labelled. Range: (0, 100]."""
+    dagger_world_sampling: str = "uniform"
+    """How DAgger's envs pick the world of each episode: "uniform" (every training world alike)
+    or "failures" (an automatic curriculum after prioritised level replay, Jiang et al. 2021: a
+    world is picked in proportion to ``dagger_world_floor`` plus its recent failure rate, the
+    share of its episodes that did not reach the goal, each iteration's counts weighing half the
+    next one's; a world not yet flown counts as half failed)."""
+    dagger_world_floor: Annotated[float, pydantic.Field(gt=0, le=10)] = 0.1
+    """With ``dagger_world_sampling`` "failures": the weight every world keeps whatever its
+    failure rate (a world the student always flies well is still picked, less often).
+    Range: (0, 10]."""
     dagger_filtered_share: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
     """Share of DAgger's envs in which the network flies behind the depth safety filter (as the
     product does) when it is the one flying; the rest fly it alone. Needs ``shield`` when > 0.
@@ -226,7 +236,10 @@ class TrainConfig:
     """Voxel size (m) of the teacher's cost-to-go field. Range: [0.05, 1]."""
     init_model: str = ""
     """Checkpoint whose weights start the online and target networks (fine-tuning; "" = random
-    init). Its network shape must match this config's."""
+    init). Its network shape must match this config's, except that this config's depth and position
+    histories may be longer: the older inputs then start at zero weight
+    (sim_harness.rl.widen), so the network starts as the checkpoint's and, with the "filter"
+    teacher, the expert is the checkpoint's network as it was."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 100
     """Episodes between checkpoints (model + resumable training state). Range: [1, 10^7]."""
     keep_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
@@ -273,6 +286,11 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'imitation_teacher': bad value {cfg.imitation_teacher!r}: "
             "teachers are privileged, filter"
+        )
+    if cfg.dagger_world_sampling not in ("uniform", "failures"):
+        raise ConfigError(
+            f"{source}: key 'dagger_world_sampling': bad value {cfg.dagger_world_sampling!r}: "
+            "choices are uniform, failures"
         )
     needs = cfg.imitation_teacher == "filter" and cfg.dagger_iterations > 0
     if needs and not (cfg.init_model and cfg.shield):

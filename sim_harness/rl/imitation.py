@@ -42,8 +42,8 @@ from sim_harness.rl.agent import DQNAgent
 from sim_harness.world import World
 
 __all__ = [
-    "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "collect", "dagger", "fit", "lr_at",
-    "margin_loss", "veto_loss",
+    "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "WorldCurriculum", "collect", "dagger",
+    "fit", "lr_at", "margin_loss", "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -68,6 +68,8 @@ class DaggerSettings:
     margin: float = 1.0
     lr_end: float | None = None
     veto_weight: float = 0.0
+    world_sampling: str = "uniform"
+    world_floor: float = 0.1
 
 
 class Aggregate:
@@ -111,6 +113,34 @@ class Aggregate:
         self.size = min(self.capacity, self.size + n)
 
 
+class WorldCurriculum:
+    """Failure-weighted world sampling (after prioritised level replay, Jiang et al. 2021): each
+    world's weight is ``floor`` plus its recent failure rate, the share of its episodes that did
+    not reach the goal; :meth:`next_weights` halves the counts so far, so each iteration weighs
+    half the next. A world not yet flown counts as half failed ((failures + 0.5) / (episodes + 1))."""
+
+    def __init__(self, n_worlds: int, floor: float) -> None:
+        if n_worlds < 1 or not floor > 0:
+            raise ValueError(f"need n_worlds >= 1 and floor > 0, got {n_worlds}, {floor}")
+        self.floor = float(floor)
+        self.episodes = np.zeros(n_worlds)
+        self.failures = np.zeros(n_worlds)
+
+    def record(self, world: int, outcome: str) -> None:
+        self.episodes[world] += 1
+        self.failures[world] += outcome != "goal"
+
+    def failure_rate(self) -> NDArray[np.float64]:
+        return (self.failures + 0.5) / (self.episodes + 1.0)
+
+    def next_weights(self) -> NDArray[np.float64]:
+        """The weights for the next iteration's episodes; then the counts so far are halved."""
+        weights = self.floor + self.failure_rate()
+        self.episodes *= 0.5
+        self.failures *= 0.5
+        return weights
+
+
 class Labeller(Protocol):
     """A teacher: labels for every env's current state, and the actions it would fly there."""
 
@@ -132,11 +162,13 @@ def collect(
     data: Aggregate,
     iteration: int,
     filtered_share: float = 0.0,
+    curriculum: WorldCurriculum | None = None,
 ) -> dict[str, int]:
     """Fly ``episodes`` episodes in ``env`` (auto-reset) with the β-mixture of teacher and network,
     adding every visited state with the teacher's label to ``data``; returns the outcome counts of
     the episodes (those the network flew when β = 0). The first ``filtered_share`` of the envs fly
-    the network behind the env's filter (its ``allowed``), as the product does; the rest alone."""
+    the network behind the env's filter (its ``allowed``), as the product does; the rest alone.
+    ``curriculum`` records each counted episode's world and outcome."""
     filtered = np.arange(env.n_envs) < round(filtered_share * env.n_envs)
     counts: dict[str, int] = {}
     finished = 0
@@ -155,6 +187,8 @@ def collect(
                 key = str(info["outcome"][i])
                 counts[key] = counts.get(key, 0) + 1
                 finished += 1
+                if curriculum is not None:
+                    curriculum.record(int(info["world_index"][i]), key)
     return counts
 
 
@@ -265,6 +299,12 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         t.make_env(list(t.worlds), n_envs, seed=s.seed + 101 * (k + 1), config=t.config)
         for k, t in enumerate(tasks)
     ]
+    if s.world_sampling not in ("uniform", "failures"):
+        raise ValueError(f"world_sampling must be 'uniform' or 'failures', got {s.world_sampling!r}")
+    curricula = [
+        WorldCurriculum(len(env.worlds), s.world_floor) if s.world_sampling == "failures" else None
+        for env in envs
+    ]
     for env in envs:
         env.reset()
     optimizer = torch.optim.Adam(agent.q.parameters(), lr=s.lr)
@@ -275,14 +315,18 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         for group in optimizer.param_groups:
             group["lr"] = lr_at(s, it)
         agent.q.eval()
-        for env, task in zip(envs, tasks, strict=True):
+        for env, task, curriculum in zip(envs, tasks, curricula, strict=True):
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
-                             s.filtered_share)
+                             s.filtered_share, curriculum)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
                 "worlds": len(task.worlds),
                 "outcomes": counts, "dataset": len(data),
             })
+            if curriculum is not None:
+                weights = curriculum.next_weights()
+                env.set_world_weights(weights)
+                records[-1]["world_weights"] = [round(float(w), 4) for w in weights]
         loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, loss_kind, s.updates,
                               s.margin_weight, s.margin, s.veto_weight)
         records[-1]["loss"] = round(loss, 6)

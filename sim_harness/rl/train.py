@@ -25,6 +25,7 @@ from typing import Any, Protocol
 
 import numba
 import numpy as np
+import structlog
 import torch
 from tqdm import tqdm
 
@@ -54,6 +55,7 @@ from sim_harness.rl.runlog import (
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.rl.tblog import TensorBoardLog, open_tensorboard
 from sim_harness.rl.teacher import Teacher, TeacherConfig
+from sim_harness.rl.widen import can_widen, widen_history
 from sim_harness.world import World, load_world, paper_world_path
 
 __all__ = [
@@ -67,6 +69,8 @@ __all__ = [
     "network_config_for",
     "train",
 ]
+
+log = structlog.get_logger(__name__)
 
 
 @dataclasses.dataclass
@@ -163,12 +167,23 @@ def _init_checkpoint(cfg: TrainConfig) -> Checkpoint | None:
     if not cfg.init_model:
         return None
     init = load_checkpoint(cfg.init_model)
-    if init.network != network_config_for(cfg):
+    if not can_widen(init.network, network_config_for(cfg)):
         raise ConfigError(
             f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
-            f"this config's {network_config_for(cfg)}"
+            f"this config's {network_config_for(cfg)} (only the histories may be longer here)"
         )
     return init
+
+
+def _init_weights(init: Checkpoint, cfg: TrainConfig) -> dict[str, torch.Tensor]:
+    """``init``'s weights for this config's network: as they are, or with the longer histories'
+    older inputs at zero weight (:func:`~sim_harness.rl.widen.widen_history`)."""
+    target = network_config_for(cfg)
+    if init.network == target:
+        return init.model.state_dict()
+    log.info("init_model widened", depth_history=[init.network.depth_history, target.depth_history],
+             position_history=[init.network.position_history, target.position_history])
+    return widen_history(init.model, target)
 
 
 def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:
@@ -229,6 +244,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         filtered_share=cfg.dagger_filtered_share, updates=cfg.imitation_updates,
         margin_weight=cfg.imitation_margin_weight, margin=cfg.imitation_margin,
         lr_end=cfg.imitation_lr_end, veto_weight=cfg.imitation_veto_weight,
+        world_sampling=cfg.dagger_world_sampling, world_floor=cfg.dagger_world_floor,
     )
     records = dagger(agent, tasks, settings, cfg.n_envs)
     (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
@@ -283,8 +299,9 @@ def train(
         device=cfg.device,
     )
     if init is not None:
-        agent.q.load_state_dict(init.model.state_dict())
-        agent.target.load_state_dict(init.model.state_dict())
+        weights = _init_weights(init, cfg)
+        agent.q.load_state_dict(weights)
+        agent.target.load_state_dict(weights)
     if cfg.dagger_iterations > 0 and resume is None:
         imitate(agent, cfg, env_config_for(cfg), worlds_ref, run_dir, lab)
         if cfg.imitation_only:
