@@ -65,6 +65,12 @@ def test_knowing_each_worlds_band_the_filter_vetoes_primitives_that_would_end_at
     assert on_steep.any() and (~on_steep).any()
     assert env.allowed[on_steep, up_forward].all()  # along the steep path: inside its own band
     assert not env.allowed[~on_steep, up_forward].any()
+    # a filter that already keeps a band (a lab's flight config) keeps it: shield_band adds none
+    steep_band = ShieldConfig(enabled=True).with_band(steep.path.waypoints_m, 0.6)
+    own = dataclasses.replace(banded, shield=steep_band)
+    env = VecQuadNavEnv([level], 1, seed=0, config=own)
+    env.reset()
+    assert env.allowed[0, up_forward] and not env.allowed[0, FORWARD]
 
 
 def test_requiring_seen_space_the_allowed_set_grows_as_the_camera_sees_more():
