@@ -68,8 +68,8 @@ class DaggerSettings:
     margin: float = 1.0
     lr_end: float | None = None
     veto_weight: float = 0.0
-    world_sampling: str = "uniform"
-    world_floor: float = 0.1
+    curriculum_floor: float | None = None
+    """:class:`WorldCurriculum`'s floor (``dagger_world_sampling`` "failures"); None: every world alike."""
 
 
 class Aggregate:
@@ -299,10 +299,8 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         t.make_env(list(t.worlds), n_envs, seed=s.seed + 101 * (k + 1), config=t.config)
         for k, t in enumerate(tasks)
     ]
-    if s.world_sampling not in ("uniform", "failures"):
-        raise ValueError(f"world_sampling must be 'uniform' or 'failures', got {s.world_sampling!r}")
     curricula = [
-        WorldCurriculum(len(env.worlds), s.world_floor) if s.world_sampling == "failures" else None
+        None if s.curriculum_floor is None else WorldCurriculum(len(env.worlds), s.curriculum_floor)
         for env in envs
     ]
     for env in envs:

@@ -179,10 +179,9 @@ def _init_weights(init: Checkpoint, cfg: TrainConfig) -> dict[str, torch.Tensor]
     """``init``'s weights for this config's network: as they are, or with the longer histories'
     older inputs at zero weight (:func:`~sim_harness.rl.widen.widen_history`)."""
     target = network_config_for(cfg)
-    if init.network == target:
-        return init.model.state_dict()
-    log.info("init_model widened", depth_history=[init.network.depth_history, target.depth_history],
-             position_history=[init.network.position_history, target.position_history])
+    if init.network != target:
+        log.info("init_model widened", depth_history=[init.network.depth_history, target.depth_history],
+                 position_history=[init.network.position_history, target.position_history])
     return widen_history(init.model, target)
 
 
@@ -244,7 +243,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         filtered_share=cfg.dagger_filtered_share, updates=cfg.imitation_updates,
         margin_weight=cfg.imitation_margin_weight, margin=cfg.imitation_margin,
         lr_end=cfg.imitation_lr_end, veto_weight=cfg.imitation_veto_weight,
-        world_sampling=cfg.dagger_world_sampling, world_floor=cfg.dagger_world_floor,
+        curriculum_floor=cfg.dagger_world_floor if cfg.dagger_world_sampling == "failures" else None,
     )
     records = dagger(agent, tasks, settings, cfg.n_envs)
     (run_dir / "dagger.json").write_text(json.dumps(records, indent=1), encoding="utf-8")
