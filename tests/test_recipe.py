@@ -19,6 +19,8 @@ from sim_harness.rl.config import TrainConfig, load_train_config
 REPO = Path(__file__).resolve().parent.parent
 PAPER = REPO / "recipes" / "paper.yaml"
 SHIPPED = REPO / "recipes" / "shipped.yaml"
+FILTER_TEACHER = REPO / "recipes" / "filter-teacher.yaml"
+FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -41,6 +43,18 @@ def test_shipped_recipe_file_is_what_the_shipped_model_was_trained_with() -> Non
     shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
     assert shipped == trained
     assert shipped != TrainConfig()
+
+
+def test_six_frame_recipe_is_the_filter_teacher_recipe_with_its_two_flags() -> None:
+    """recipes/filter-teacher-h6.yaml is recipes/filter-teacher.yaml with ``--imitation-veto-weight
+    1 --depth-history 6`` (the commands its figures were measured with), under its own name."""
+    h6 = cmd_train.config_for(_parse(["--recipe", str(FILTER_TEACHER_H6)]))
+    flags = cmd_train.config_for(
+        _parse(["--recipe", str(FILTER_TEACHER), "--imitation-veto-weight", "1", "--depth-history", "6"])
+    )
+    assert h6.name == "filter-teacher-h6"
+    assert dataclasses.replace(h6, name=flags.name) == flags
+    assert (h6.depth_history, h6.imitation_veto_weight) == (6, 1.0)
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
