@@ -21,6 +21,7 @@ PAPER = REPO / "recipes" / "paper.yaml"
 SHIPPED = REPO / "recipes" / "shipped.yaml"
 FILTER_TEACHER = REPO / "recipes" / "filter-teacher.yaml"
 FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
+PRIVILEGED = REPO / "recipes" / "privileged.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -55,6 +56,22 @@ def test_six_frame_recipe_is_the_filter_teacher_recipe_with_its_two_flags() -> N
     assert h6.name == "filter-teacher-h6"
     assert dataclasses.replace(h6, name=flags.name) == flags
     assert (h6.depth_history, h6.imitation_veto_weight) == (6, 1.0)
+
+
+def test_privileged_recipe_is_the_filter_teacher_recipe_with_the_privileged_teacher() -> None:
+    """recipes/privileged.yaml is recipes/filter-teacher.yaml with ``--imitation-teacher privileged
+    --dagger-filtered-share 0.5 --dagger-iterations 15`` (the commands its figures were measured
+    with), under its own name, starting from the shipped model."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED)]))
+    flags = cmd_train.config_for(_parse([
+        "--recipe", str(FILTER_TEACHER), "--imitation-teacher", "privileged",
+        "--dagger-filtered-share", "0.5", "--dagger-iterations", "15",
+    ]))
+    assert recipe.name == "privileged"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert (recipe.imitation_teacher, recipe.dagger_filtered_share, recipe.dagger_iterations) == (
+        "privileged", 0.5, 15)
+    assert (REPO / recipe.init_model).resolve() == DEFAULT_MODEL_PATH.resolve()
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
