@@ -179,7 +179,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="seed of the layouts (default 4242; recipes/lab.yaml trains on 20261203)",
     )
     p.add_argument("--trials", type=_count, default=5, help="trials per world (default 5, as in the paper)")
-    p.add_argument("--seed", type=_seed, default=0, help="seed of the start jitter (default 0)")
+    p.add_argument(
+        "--seed",
+        type=_seed,
+        default=0,
+        help="seed of the start jitter (default 0); the i-th world of the list (from 0) flies with seed "
+        "1009 * SEED + i, so a world flown alone draws other starts than in a longer list",
+    )
     p.add_argument(
         "--start-jitter-m",
         type=_non_negative,

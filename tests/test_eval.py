@@ -41,6 +41,19 @@ def test_success_counting_on_a_scripted_policy() -> None:
     assert s["success_rate"] == 0.5 and s["collision_free_rate"] == 0.5 and s["success_among_safe"] == 1.0
 
 
+def test_a_worlds_flights_depend_on_its_place_in_the_list_not_on_the_other_worlds() -> None:
+    free, other = _world("free", []), _world("other", [{"type": "sphere", "center": [6, 3, 2], "radius": 1}])
+    cfg = EnvConfig(max_steps=10)
+
+    def flights(worlds: list) -> list[tuple[float, float]]:
+        rows = evaluate(_forward, worlds, trials=4, seed=3, env_config=cfg)
+        return [(r.distance_m, r.total_reward) for r in rows if r.world == "free"]
+
+    second = flights([other, free])
+    assert flights([free, free])[4:] == second  # the same place: seed 1009 * 3 + 1
+    assert flights([free]) != second  # alone it is first: seed 1009 * 3, other starts
+
+
 def test_summary_separates_safe_failures_from_crashes() -> None:
     def row(outcome: str) -> EvalRow:
         return EvalRow("w", 0, 1.0, 1.0, outcome == "crash", 0.0, outcome)

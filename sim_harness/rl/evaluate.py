@@ -269,6 +269,9 @@ def evaluate(
 ) -> list[EvalRow]:
     """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order.
 
+    World ``i`` of ``worlds`` (from 0) is flown with seed ``1009 * seed + i`` (its starts, its
+    depth noise): a world's flights depend on its place in the list, not on the other worlds.
+
     ``limits``: a flight config's geofence and altitude band, checked at each step's end (outcomes
     ``geofence``/``altitude``) and, with ``known_rooms``, the geofence given to the filter with the
     world's room (:func:`known_room`). ``depth_noise``: the D435-like noise on every frame.
