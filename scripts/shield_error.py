@@ -32,7 +32,7 @@ def main() -> int:
     from sim_harness.cmd_eval import add_flight_flags, at_flight_scale, shield_from_flags
     from sim_harness.collision import clearance_m
     from sim_harness.env import VecQuadNavEnv
-    from sim_harness.rl.evaluate import env_config_for_policy
+    from sim_harness.rl.evaluate import env_config_for_policy, world_seed
     from sim_harness.world import load_world, paper_world_path
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -58,8 +58,8 @@ def main() -> int:
     pred_all: list[np.ndarray] = []
     true_all: list[np.ndarray] = []
     for w_i, world in enumerate(worlds):
-        env = VecQuadNavEnv([world], args.trials, seed=args.seed * 1009 + w_i, config=env_cfg,
-                            autoreset=False)  # evaluate()'s seeding
+        env = VecQuadNavEnv([world], args.trials, seed=world_seed(args.seed, w_i), config=env_cfg,
+                            autoreset=False)
         depth, rel = env.reset()
         while not env.done.all():
             action = masked_argmax(policy.q_values_batch(depth, rel), env.allowed)

@@ -23,7 +23,7 @@ def main() -> int:
     from sim_harness.cmd_eval import add_flight_flags, at_flight_scale, shield_from_flags
     from sim_harness.env import VecQuadNavEnv
     from sim_harness.procgen import procedural_worlds
-    from sim_harness.rl.evaluate import env_config_for_policy
+    from sim_harness.rl.evaluate import env_config_for_policy, world_seed
     from sim_harness.world import load_world
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -51,8 +51,8 @@ def main() -> int:
     print(world.name)
     for ob in world.obstacles:
         print("  ", ob)
-    env = VecQuadNavEnv([world], args.trials, seed=args.seed * 1009 + args.world_index, config=env_cfg,
-                        autoreset=False)  # evaluate()'s seeding
+    env = VecQuadNavEnv([world], args.trials, seed=world_seed(args.seed, args.world_index), config=env_cfg,
+                        autoreset=False)
     directions = np.asarray(env.prims.directions)
     depth, rel = env.reset()
     i, step = args.trial, 0

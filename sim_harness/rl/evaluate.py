@@ -50,6 +50,7 @@ __all__ = [
     "policy_greedy_fn",
     "scores",
     "summarize",
+    "world_seed",
 ]
 
 GreedyFn = Callable[[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]], NDArray[np.int64]]
@@ -254,6 +255,12 @@ class FilterOverrules:
         return {"decisions": self.decisions, "overruled": self.overruled, "rate": self.rate}
 
 
+def world_seed(seed: int, index: int) -> int:
+    """The seed of the flights in world ``index`` (from 0) of an eval's list: its starts and its
+    depth noise depend on its place in the list and ``seed``, not on the other worlds."""
+    return seed * 1009 + index
+
+
 def evaluate(
     act: GreedyFn,
     worlds: Sequence[World],
@@ -269,8 +276,7 @@ def evaluate(
 ) -> list[EvalRow]:
     """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order.
 
-    World ``i`` of ``worlds`` (from 0) is flown with seed ``1009 * seed + i`` (its starts, its
-    depth noise): a world's flights depend on its place in the list, not on the other worlds.
+    World ``i`` of ``worlds`` is flown with seed :func:`world_seed` ``(seed, i)``.
 
     ``limits``: a flight config's geofence and altitude band, checked at each step's end (outcomes
     ``geofence``/``altitude``) and, with ``known_rooms``, the geofence given to the filter with the
@@ -282,7 +288,7 @@ def evaluate(
         cfg = env_config
         if known_rooms and cfg.shield.enabled:
             cfg = dataclasses.replace(cfg, shield=known_room(cfg.shield, world, limits))
-        w_seed = seed * 1009 + w_i
+        w_seed = world_seed(seed, w_i)
         if depth_noise is None:
             env = VecQuadNavEnv([world], trials, seed=w_seed, config=cfg, autoreset=False)
         else:
