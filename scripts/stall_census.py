@@ -1,0 +1,129 @@
+#!/usr/bin/env python3
+"""What a model does in the flights that end short of the goal without a crash: the decisions
+of every flight of an eval that ended at the step limit or the deviation limit, counted by what
+the filter allowed and what the DQN chose.
+
+The flights are those of ``quadnav-sim eval`` with the same flags (same worlds, seeds and
+filter). Each decision of such a flight falls in one of four classes:
+
+- ``forward``: it flew a primitive that moves forward (one of the 9 with a forward component);
+- ``held_back``: it flew one that does not, though the filter allowed a forward one and did not
+  overrule the DQN's first choice: the DQN itself chose to hold;
+- ``overruled_back``: it flew one that does not, a forward one being allowed, because the filter
+  vetoed the DQN's first choice and the DQN ranked a non-forward one next;
+- ``boxed_in``: the filter allowed no forward primitive.
+
+Trace development worlds, never the test set (procedural seed 4242) when choosing anything.
+
+Usage:  python scripts/stall_census.py [--model CKPT] [--world W ... | --procedural N --procedural-seed P]
+            [--primitive-scale M] [--trials 10] [--seed 0] [--shield on|model] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import Counter
+
+import numpy as np
+
+CLASSES = ("forward", "held_back", "overruled_back", "boxed_in")
+
+
+def classify(q: np.ndarray, allowed: np.ndarray, forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(flown (N,), class index (N,) into :data:`CLASSES`) for Q-values ``q`` (N, A), the filter's
+    ``allowed`` (N, A) and ``forward`` (A,): which primitives move forward."""
+    from quadnav_onboard.policy import masked_argmax
+
+    flown = masked_argmax(q, allowed)
+    first = np.argmax(q, axis=1)
+    fwd_allowed = (allowed & forward[None, :]).any(axis=1)
+    cls = np.where(
+        forward[flown], 0, np.where(~fwd_allowed, 3, np.where(first == flown, 1, 2))
+    )
+    return flown, cls
+
+
+def census(policy, worlds, trials: int, seed: int, env_cfg) -> dict:
+    """Fly the eval's flights; count the classes of the decisions of each outcome."""
+    from sim_harness.rl.evaluate import evaluate
+
+    forward = np.asarray(env_cfg.primitives.directions)[:, 0] > 0
+    per_world: list[list[np.ndarray]] = [[]]
+
+    def act(depth, rel, allowed):
+        q = policy.q_values_batch(depth, rel)
+        flown, cls = classify(q, np.asarray(allowed, dtype=bool), forward)
+        per_world[-1].append(cls)
+        return flown
+
+    rows = evaluate(act, worlds, trials, seed, env_cfg, on_world_done=lambda _w: per_world.append([]))
+    counts: dict[str, Counter] = {}
+    failures: Counter = Counter()
+    for w, world in enumerate(worlds):
+        steps = np.stack(per_world[w])  # (calls, trials)
+        for t in range(trials):
+            row = rows[w * trials + t]
+            n = round(row.time_s / env_cfg.primitives.duration_s)
+            c = counts.setdefault(row.outcome, Counter())
+            c.update(CLASSES[k] for k in steps[:n, t])
+            if row.outcome not in ("goal", "crash"):
+                failures[world.name] += 1
+    outcomes = Counter(r.outcome for r in rows)
+    return {
+        "flights": len(rows),
+        "outcomes": dict(outcomes),
+        "decisions": {o: {k: int(c[k]) for k in CLASSES} for o, c in sorted(counts.items())},
+        "failures_by_world": dict(failures.most_common()),
+    }
+
+
+def main() -> int:
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from sim_harness.cmd_eval import add_flight_flags, at_flight_scale, shield_from_flags
+    from sim_harness.procgen import procedural_worlds
+    from sim_harness.rl.evaluate import env_config_for_policy
+    from sim_harness.world import load_world, paper_world_path, resolve_world_arg
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
+    ap.add_argument("--world", action="append", default=None, help="a world (repeat); default Env 1-10")
+    ap.add_argument("--procedural", type=int, default=None, metavar="N")
+    ap.add_argument("--procedural-seed", type=int, default=4242)
+    ap.add_argument("--trials", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0, help="the eval's --seed")
+    add_flight_flags(ap, shield_default="on")  # --primitive-scale, --shield, --shield-set: as eval
+    ap.add_argument("--json", default=None, metavar="OUT")
+    args = ap.parse_args()
+    if args.shield == "off":
+        print("stall_census: it counts flights with the filter (--shield on or model)", file=sys.stderr)
+        return 2
+    if args.trials < 1:
+        print("stall_census: --trials must be >= 1", file=sys.stderr)
+        return 2
+    policy = Policy.from_path(args.model)
+    if args.procedural is not None:
+        worlds = procedural_worlds(args.procedural, args.procedural_seed)
+    else:
+        names = args.world or [str(paper_world_path(i)) for i in range(1, 11)]
+        worlds = [load_world(resolve_world_arg(w)) for w in names]
+    env_cfg = env_config_for_policy(policy, max_steps=120, start_jitter_m=0.5,
+                                    shield=shield_from_flags(policy, args))
+    env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, None)
+    out = census(policy, worlds, args.trials, args.seed, env_cfg)
+    out["model"] = args.model
+    print(f"{out['flights']} flights: {out['outcomes']}")
+    print(f"{'outcome':>10} {'decisions':>9} " + " ".join(f"{k:>15}" for k in CLASSES))
+    for o, c in out["decisions"].items():
+        n = sum(c.values())
+        print(f"{o:>10} {n:9d} " + " ".join(f"{c[k]:7d} ({c[k] / max(n, 1):5.1%})" for k in CLASSES))
+    print("flights short of the goal without a crash, by world:", out["failures_by_world"])
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,67 @@
+"""scripts/stall_census.py: the classes of a decision, and a census that flies the eval's flights."""
+
+from __future__ import annotations
+
+import importlib.util as ilu
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "stall_census.py"
+
+
+def _module():
+    spec = ilu.spec_from_file_location("stall_census", SCRIPT)
+    mod = ilu.module_from_spec(spec)
+    assert spec.loader is not None
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_each_decision_falls_in_the_class_of_what_was_allowed_and_chosen() -> None:
+    mod = _module()
+    forward = np.array([True, True, False, False])
+    q = np.array([
+        [5.0, 1.0, 2.0, 0.0],  # first choice forward, allowed: forward
+        [1.0, 0.0, 5.0, 2.0],  # first choice a hold, allowed, a forward one allowed too: held back
+        [9.0, 0.0, 5.0, 2.0],  # first choice forward but vetoed, next best a hold: overruled back
+        [9.0, 8.0, 5.0, 2.0],  # no forward primitive allowed: boxed in
+    ])
+    allowed = np.array([
+        [True, True, True, True],
+        [True, True, True, True],
+        [False, True, True, True],
+        [False, False, True, True],
+    ])
+    flown, cls = mod.classify(q, allowed, forward)
+    assert flown.tolist() == [0, 2, 2, 2]
+    assert [mod.CLASSES[k] for k in cls] == ["forward", "held_back", "overruled_back", "boxed_in"]
+
+
+def test_the_census_flies_the_flights_eval_flies_and_counts_each_of_their_decisions(tmp_path) -> None:
+    """Same outcomes as ``evaluate`` with the same model, worlds and seed; one class per decision."""
+    from quadnav_onboard.policy import Policy
+    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.world import load_world, resolve_world_arg
+
+    out = tmp_path / "c.json"
+    run = subprocess.run([sys.executable, str(SCRIPT), "--world", "env03", "--trials", "3", "--seed", "5",
+                          "--json", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+
+    policy = Policy.from_path(r["model"])
+    cfg = env_config_for_policy(policy, max_steps=120, start_jitter_m=0.5)
+    rows = evaluate(policy_greedy_fn(policy), [load_world(resolve_world_arg("env03"))], 3, 5, cfg)
+    outcomes: dict[str, int] = {}
+    for row in rows:
+        outcomes[row.outcome] = outcomes.get(row.outcome, 0) + 1
+    assert r["flights"] == 3 and r["outcomes"] == outcomes
+    steps = sum(round(row.time_s / cfg.primitives.duration_s) for row in rows)
+    assert sum(sum(c.values()) for c in r["decisions"].values()) == steps > 0
+
+    refused = subprocess.run([sys.executable, str(SCRIPT), "--shield", "off"], capture_output=True, text=True)
+    assert refused.returncode == 2 and "with the filter" in refused.stderr
