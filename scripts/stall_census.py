@@ -80,37 +80,44 @@ def census(policy, worlds, trials: int, seed: int, env_cfg) -> dict:
 
 
 def main() -> int:
+    from quadnav_onboard.checkpoint import CheckpointError
+    from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from sim_harness.cmd_eval import add_flight_flags, at_flight_scale, shield_from_flags
-    from sim_harness.procgen import procedural_worlds
-    from sim_harness.rl.evaluate import env_config_for_policy
-    from sim_harness.world import load_world, paper_world_path, resolve_world_arg
+    from sim_harness.cmd_eval import add_flight_flags, sim_env_config, worlds_from_flags
+    from sim_harness.world import WorldError
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
-    ap.add_argument("--world", action="append", default=None, help="a world (repeat); default Env 1-10")
+    ap.add_argument("--world", action="append", default=None, help="as eval's (repeat); default Env 1-10")
     ap.add_argument("--procedural", type=int, default=None, metavar="N")
     ap.add_argument("--procedural-seed", type=int, default=4242)
     ap.add_argument("--trials", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0, help="the eval's --seed")
+    ap.add_argument("--start-jitter-m", type=float, default=None, metavar="M", help="as eval's (default 0.5)")
+    ap.add_argument("--max-steps", type=int, default=None, help="as eval's (default 120, scaled)")
     add_flight_flags(ap, shield_default="on")  # --primitive-scale, --shield, --shield-set: as eval
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args()
     if args.shield == "off":
         print("stall_census: it counts flights with the filter (--shield on or model)", file=sys.stderr)
         return 2
-    if args.trials < 1:
-        print("stall_census: --trials must be >= 1", file=sys.stderr)
+    if args.trials < 1 or any(n is not None and n < 1 for n in (args.procedural, args.max_steps)):
+        print("stall_census: --trials, --procedural and --max-steps must be >= 1", file=sys.stderr)
         return 2
-    policy = Policy.from_path(args.model)
-    if args.procedural is not None:
-        worlds = procedural_worlds(args.procedural, args.procedural_seed)
-    else:
-        names = args.world or [str(paper_world_path(i)) for i in range(1, 11)]
-        worlds = [load_world(resolve_world_arg(w)) for w in names]
-    env_cfg = env_config_for_policy(policy, max_steps=120, start_jitter_m=0.5,
-                                    shield=shield_from_flags(policy, args))
-    env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, None)
+    if args.start_jitter_m is not None and not 0 <= args.start_jitter_m < float("inf"):
+        print(f"stall_census: --start-jitter-m must be >= 0 and finite, got {args.start_jitter_m}",
+              file=sys.stderr)
+        return 2
+    if args.world and args.procedural is not None:
+        print("stall_census: give --world or --procedural N, not both", file=sys.stderr)
+        return 2
+    try:
+        policy = Policy.from_path(args.model)
+        worlds, _ = worlds_from_flags(args)
+        env_cfg, worlds = sim_env_config(policy, args, worlds)
+    except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
+        print(f"stall_census: {exc}", file=sys.stderr)
+        return 2
     out = census(policy, worlds, args.trials, args.seed, env_cfg)
     out["model"] = args.model
     print(f"{out['flights']} flights: {out['outcomes']}")

@@ -17,7 +17,16 @@ if TYPE_CHECKING:
     from sim_harness.rl.evaluate import FlightLimits
     from sim_harness.world import World
 
-__all__ = ["add_flight_flags", "add_parser", "at_flight_scale", "flight_setup", "run", "shield_from_flags"]
+__all__ = [
+    "add_flight_flags",
+    "add_parser",
+    "at_flight_scale",
+    "flight_setup",
+    "run",
+    "shield_from_flags",
+    "sim_env_config",
+    "worlds_from_flags",
+]
 
 
 def shield_from_flags(policy: Policy, args: argparse.Namespace) -> ShieldConfig:
@@ -43,6 +52,38 @@ def at_flight_scale(
     if scale == REFERENCE_SCALE_M:
         return env_cfg, worlds
     return at_primitive_scale(env_cfg, worlds, scale, max_steps)
+
+
+def worlds_from_flags(args: argparse.Namespace) -> tuple[list[World], list[Path | str]]:
+    """The worlds of ``--world`` (repeated) or ``--procedural N --procedural-seed P`` (default: the
+    ten paper worlds), each with where it came from; raises WorldError on a bad world."""
+    from sim_harness.world import load_world, paper_world_path, resolve_world_arg
+
+    if args.procedural is not None:
+        from sim_harness.procgen import procedural_worlds
+
+        worlds = procedural_worlds(args.procedural, args.procedural_seed)
+        return worlds, [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
+    paths: list[Path | str] = (
+        [resolve_world_arg(w) for w in args.world]
+        if args.world
+        else [paper_world_path(i) for i in range(1, 11)]
+    )
+    return [load_world(p) for p in paths], paths
+
+
+def sim_env_config(
+    policy: Policy, args: argparse.Namespace, worlds: list[World]
+) -> tuple[EnvConfig, list[World]]:
+    """The env and worlds of an eval without a flight config: ``--shield``/``--shield-set``,
+    ``--start-jitter-m`` (default 0.5), ``--max-steps`` (default 120) and ``--primitive-scale``."""
+    from sim_harness.rl.evaluate import env_config_for_policy
+
+    jitter = 0.5 if args.start_jitter_m is None else args.start_jitter_m
+    env_cfg = env_config_for_policy(
+        policy, max_steps=args.max_steps or 120, start_jitter_m=jitter, shield=shield_from_flags(policy, args)
+    )
+    return at_flight_scale(env_cfg, worlds, args, args.max_steps)
 
 
 def flight_setup(
@@ -228,15 +269,8 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from sim_harness.rl.evaluate import (
-        FilterOverrules,
-        env_config_for_policy,
-        evaluate,
-        format_table,
-        policy_greedy_fn,
-        summarize,
-    )
-    from sim_harness.world import WorldError, load_world, paper_world_path, resolve_world_arg
+    from sim_harness.rl.evaluate import FilterOverrules, evaluate, format_table, policy_greedy_fn, summarize
+    from sim_harness.world import WorldError
 
     if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
         print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
@@ -254,30 +288,14 @@ def run(args: argparse.Namespace) -> int:
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
     try:
         policy = Policy.from_path(model)
-        if args.procedural is not None:
-            from sim_harness.procgen import procedural_worlds
-
-            worlds = procedural_worlds(args.procedural, args.procedural_seed)
-            paths: list[Path | str] = [f"<procgen {w.name} seed {args.procedural_seed}>" for w in worlds]
-        else:
-            paths = (
-                [resolve_world_arg(w) for w in args.world]
-                if args.world
-                else [paper_world_path(i) for i in range(1, 11)]
-            )
-            worlds = [load_world(p) for p in paths]
+        worlds, paths = worlds_from_flags(args)
         limits = None
         if args.flight_config:
             env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
             if args.layouts is not None:
                 worlds = _layouts(env_cfg, worlds, limits, args.layouts, args.layout_seed)
         else:
-            shield = shield_from_flags(policy, args)
-            jitter = 0.5 if args.start_jitter_m is None else args.start_jitter_m
-            env_cfg = env_config_for_policy(
-                policy, max_steps=args.max_steps or 120, start_jitter_m=jitter, shield=shield
-            )
-            env_cfg, worlds = at_flight_scale(env_cfg, worlds, args, args.max_steps)
+            env_cfg, worlds = sim_env_config(policy, args, worlds)
         noise = None
         if args.depth_noise == "on" or (args.depth_noise == "auto" and args.flight_config):
             from sim_harness.noise import DepthNoise

@@ -44,7 +44,7 @@ def test_each_decision_falls_in_the_class_of_what_was_allowed_and_chosen() -> No
 def test_the_census_flies_the_flights_eval_flies_and_counts_each_of_their_decisions(tmp_path) -> None:
     """Same outcomes as ``evaluate`` with the same model, worlds and seed; one class per decision."""
     from quadnav_onboard.policy import Policy
-    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.rl.evaluate import FilterOverrules, env_config_for_policy, evaluate, policy_greedy_fn
     from sim_harness.world import load_world, resolve_world_arg
 
     out = tmp_path / "c.json"
@@ -55,13 +55,19 @@ def test_the_census_flies_the_flights_eval_flies_and_counts_each_of_their_decisi
 
     policy = Policy.from_path(r["model"])
     cfg = env_config_for_policy(policy, max_steps=120, start_jitter_m=0.5)
-    rows = evaluate(policy_greedy_fn(policy), [load_world(resolve_world_arg("env03"))], 3, 5, cfg)
+    assert cfg.shield.enabled  # the census flies with the filter; so must the reference
+    decisions = FilterOverrules()  # counts every decision a running flight takes, independently
+    rows = evaluate(policy_greedy_fn(policy), [load_world(resolve_world_arg("env03"))], 3, 5, cfg,
+                    overrules=decisions)
     outcomes: dict[str, int] = {}
     for row in rows:
         outcomes[row.outcome] = outcomes.get(row.outcome, 0) + 1
     assert r["flights"] == 3 and r["outcomes"] == outcomes
-    steps = sum(round(row.time_s / cfg.primitives.duration_s) for row in rows)
-    assert sum(sum(c.values()) for c in r["decisions"].values()) == steps > 0
+    assert sum(sum(c.values()) for c in r["decisions"].values()) == decisions.decisions > 0
 
     refused = subprocess.run([sys.executable, str(SCRIPT), "--shield", "off"], capture_output=True, text=True)
     assert refused.returncode == 2 and "with the filter" in refused.stderr
+    missing = tmp_path / "nowhere.yaml"
+    bad = subprocess.run([sys.executable, str(SCRIPT), "--world", str(missing)],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "nowhere.yaml" in bad.stderr and "Traceback" not in bad.stderr
