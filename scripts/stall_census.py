@@ -16,7 +16,8 @@ filter). Each decision of such a flight falls in one of four classes:
 Trace development worlds, never the test set (procedural seed 4242) when choosing anything.
 
 Usage:  python scripts/stall_census.py [--model CKPT] [--world W ... | --procedural N --procedural-seed P]
-            [--primitive-scale M] [--trials 10] [--seed 0] [--shield on|model] [--json OUT]
+            [--primitive-scale M | --flight-config FLIGHT.yaml] [--trials 10] [--seed 0]
+            [--shield on|model] [--json OUT]
 """
 
 from __future__ import annotations
@@ -45,8 +46,9 @@ def classify(q: np.ndarray, allowed: np.ndarray, forward: np.ndarray) -> tuple[n
     return flown, cls
 
 
-def census(policy, worlds, trials: int, seed: int, env_cfg) -> dict:
-    """Fly the eval's flights; count the classes of the decisions of each outcome."""
+def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_noise=None) -> dict:
+    """Fly the eval's flights (under a flight config: its ``limits`` and ``depth_noise``, as
+    ``quadnav-sim eval --flight-config`` flies them); count the classes of each outcome's decisions."""
     from sim_harness.rl.evaluate import evaluate
 
     forward = np.asarray(env_cfg.primitives.directions)[:, 0] > 0
@@ -58,7 +60,8 @@ def census(policy, worlds, trials: int, seed: int, env_cfg) -> dict:
         per_world[-1].append(cls)
         return flown
 
-    rows = evaluate(act, worlds, trials, seed, env_cfg, on_world_done=lambda _w: per_world.append([]))
+    rows = evaluate(act, worlds, trials, seed, env_cfg, on_world_done=lambda _w: per_world.append([]),
+                    limits=limits, depth_noise=depth_noise)
     counts: dict[str, Counter] = {}
     failures: Counter = Counter()
     for w, world in enumerate(worlds):
@@ -80,11 +83,8 @@ def census(policy, worlds, trials: int, seed: int, env_cfg) -> dict:
 
 
 def main() -> int:
-    from quadnav_onboard.checkpoint import CheckpointError
-    from quadnav_onboard.config import ConfigError
-    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from sim_harness.cmd_eval import add_flight_flags, sim_env_config, worlds_from_flags
-    from sim_harness.world import WorldError
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH
+    from sim_harness.cmd_eval import add_flight_flags, load_flights
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
@@ -96,6 +96,8 @@ def main() -> int:
     ap.add_argument("--start-jitter-m", type=float, default=None, metavar="M", help="as eval's (default 0.5)")
     ap.add_argument("--max-steps", type=int, default=None, help="as eval's (default 120, scaled)")
     add_flight_flags(ap, shield_default="on")  # --primitive-scale, --shield, --shield-set: as eval
+    ap.add_argument("--flight-config", default=None, metavar="FLIGHT.yaml",
+                    help="as eval's: fly under this flight config, its limits and the depth noise")
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args()
     if args.shield == "off":
@@ -111,14 +113,12 @@ def main() -> int:
     if args.world and args.procedural is not None:
         print("stall_census: give --world or --procedural N, not both", file=sys.stderr)
         return 2
-    try:
-        policy = Policy.from_path(args.model)
-        worlds, _ = worlds_from_flags(args)
-        env_cfg, worlds = sim_env_config(policy, args, worlds)
-    except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
-        print(f"stall_census: {exc}", file=sys.stderr)
+    loaded = load_flights("stall_census", args.model, args)
+    if loaded is None:
         return 2
-    out = census(policy, worlds, args.trials, args.seed, env_cfg)
+    policy, flights = loaded
+    out = census(policy, flights.worlds, args.trials, args.seed, flights.env_config, flights.limits,
+                 flights.depth_noise)
     out["model"] = args.model
     print(f"{out['flights']} flights: {out['outcomes']}")
     print(f"{'outcome':>10} {'decisions':>9} " + " ".join(f"{k:>15}" for k in CLASSES))

@@ -14,14 +14,18 @@ if TYPE_CHECKING:
     from quadnav_onboard.policy import Policy
     from quadnav_onboard.shield import ShieldConfig
     from sim_harness.env import EnvConfig
+    from sim_harness.noise import DepthNoise
     from sim_harness.rl.evaluate import FlightLimits
     from sim_harness.world import World
 
 __all__ = [
+    "Flights",
     "add_flight_flags",
     "add_parser",
     "at_flight_scale",
     "flight_setup",
+    "flights_from_flags",
+    "load_flights",
     "run",
     "shield_from_flags",
     "sim_env_config",
@@ -104,6 +108,63 @@ def flight_setup(
         shield = dataclasses.replace(shield, enabled=args.shield == "on")
     shield = override_shield(shield, args.shield_set)
     return dataclasses.replace(env_cfg, shield=shield), flown, limits
+
+
+@dataclasses.dataclass(frozen=True)
+class Flights:
+    """What an eval flies, from its flags: the env, the worlds, and under ``--flight-config`` the
+    flight's stop conditions and the depth noise."""
+
+    env_config: EnvConfig
+    worlds: list[World]
+    limits: FlightLimits | None
+    depth_noise: DepthNoise | None
+    sources: list[Path | str]
+    """Where each world given came from (``--world``'s files; the rooms, with ``--layouts``)."""
+
+
+def flights_from_flags(policy: Policy, args: argparse.Namespace) -> Flights:
+    """The flights of ``quadnav-sim eval`` with ``args`` (also read by the scripts that replay
+    them): ``--world``/``--procedural``, ``--flight-config`` (its limits and, unless
+    ``--depth-noise off``, the depth noise; ``--layouts`` of its rooms) or the sim's env
+    (:func:`sim_env_config`). Raises ValueError on flags that do not go together, WorldError and
+    ConfigError on bad files."""
+    flight_config = getattr(args, "flight_config", None)
+    if flight_config and (args.primitive_scale is not None or args.max_steps is not None):
+        raise ValueError("--flight-config sets the primitives and the step limit: not with "
+                         "--primitive-scale or --max-steps")
+    worlds, paths = worlds_from_flags(args)
+    limits = None
+    if flight_config:
+        env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
+        layouts = getattr(args, "layouts", None)
+        if layouts is not None:
+            worlds = _layouts(env_cfg, worlds, limits, layouts, args.layout_seed)
+    else:
+        env_cfg, worlds = sim_env_config(policy, args, worlds)
+    noise = None
+    depth_noise = getattr(args, "depth_noise", "auto")
+    if depth_noise == "on" or (depth_noise == "auto" and flight_config):
+        from sim_harness.noise import DepthNoise
+
+        noise = DepthNoise()
+    return Flights(env_cfg, worlds, limits, noise, paths)
+
+
+def load_flights(prog: str, model: str | Path, args: argparse.Namespace) -> tuple[Policy, Flights] | None:
+    """The checkpoint ``model`` and :func:`flights_from_flags`; on bad input (a checkpoint, a world,
+    a flight config, flags) prints ``prog: what is wrong`` to stderr and returns None."""
+    from quadnav_onboard.checkpoint import CheckpointError
+    from quadnav_onboard.config import ConfigError
+    from quadnav_onboard.policy import Policy
+    from sim_harness.world import WorldError
+
+    try:
+        policy = Policy.from_path(model)
+        return policy, flights_from_flags(policy, args)
+    except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
 
 
 def _layouts(env_cfg: EnvConfig, rooms: list[World], limits: FlightLimits, n: int, seed: int) -> list[World]:
@@ -266,11 +327,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from quadnav_onboard.checkpoint import CheckpointError
-    from quadnav_onboard.config import ConfigError
-    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH
     from sim_harness.rl.evaluate import FilterOverrules, evaluate, format_table, policy_greedy_fn, summarize
-    from sim_harness.world import WorldError
 
     if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
         print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
@@ -281,29 +339,13 @@ def run(args: argparse.Namespace) -> int:
     if args.layouts is not None and not (args.flight_config and args.world):
         print("quadnav-sim eval: --layouts N needs --flight-config and the room as --world", file=sys.stderr)
         return 2
-    if args.flight_config and (args.primitive_scale is not None or args.max_steps is not None):
-        print("quadnav-sim eval: --flight-config sets the primitives and the step limit: not with "
-              "--primitive-scale or --max-steps", file=sys.stderr)
-        return 2
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
-    try:
-        policy = Policy.from_path(model)
-        worlds, paths = worlds_from_flags(args)
-        limits = None
-        if args.flight_config:
-            env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
-            if args.layouts is not None:
-                worlds = _layouts(env_cfg, worlds, limits, args.layouts, args.layout_seed)
-        else:
-            env_cfg, worlds = sim_env_config(policy, args, worlds)
-        noise = None
-        if args.depth_noise == "on" or (args.depth_noise == "auto" and args.flight_config):
-            from sim_harness.noise import DepthNoise
-
-            noise = DepthNoise()
-    except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
-        print(f"quadnav-sim eval: {exc}", file=sys.stderr)
+    loaded = load_flights("quadnav-sim eval", model, args)
+    if loaded is None:
         return 2
+    policy, flights = loaded
+    env_cfg, worlds, limits = flights.env_config, flights.worlds, flights.limits
+    noise, paths = flights.depth_noise, flights.sources
     bar = tqdm(total=len(worlds), desc="eval", unit="world", disable=args.no_progress, file=sys.stderr)
     overrules = FilterOverrules()
     rows = evaluate(

@@ -190,29 +190,48 @@ def test_a_scale_that_is_not_positive_is_refused_before_any_flight(command: str,
     assert "--primitive-scale: must be > 0 and finite, got 0" in capsys.readouterr().err
 
 
-def test_trace_flight_script_replays_the_flight_eval_flew() -> None:
-    """scripts/trace_flight.py flies trial T of world I as eval does (same seed, filter and scale):
-    its outcome is eval's for that trial, and it prints one line per step."""
+@pytest.mark.parametrize(
+    ("flags", "index", "trial"),
+    [
+        (["--world", "env05", "--world", "env04", "--max-steps", "25"], 0, 1),
+        (["--world", "lab01", "--world", "lab02", "--flight-config", "config/flight.yaml"], 1, 2),
+    ],
+    ids=["paper-world", "lab-under-the-flight-config"],
+)
+def test_trace_flight_script_replays_the_flight_eval_flew(flags, index, trial, tmp_path, capsys) -> None:
+    """scripts/trace_flight.py flies trial T of world I as ``quadnav-sim eval`` with the same flags
+    does (same seed, filter and the room known to it, scale; under a flight config its limits and
+    the depth noise): it ends as eval's row for that trial, one line per decision."""
     import subprocess
     import sys
     from pathlib import Path
 
-    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
-    from sim_harness.world import load_world, paper_world_path
-
-    policy = Policy.from_path(DEFAULT_MODEL_PATH)
-    world = paper_world_path(5)
-    rows = evaluate(policy_greedy_fn(policy), [load_world(world)], trials=2, seed=3,
-                    env_config=env_config_for_policy(policy, max_steps=25))
-    script = Path(__file__).resolve().parents[1] / "scripts" / "trace_flight.py"
-    out = subprocess.run(
-        [sys.executable, str(script), "--world", str(world), "--trial", "1", "--trials", "2", "--seed", "3",
-         "--max-steps", "25"],
-        check=True, capture_output=True, text=True,
+    repo = Path(__file__).resolve().parents[1]
+    common = [*flags, "--trials", "3", "--seed", "3"]
+    out = tmp_path / "eval.json"
+    assert main(["eval", *common, "--json", str(out), "--no-progress"]) == 0
+    capsys.readouterr()
+    row = json.loads(out.read_text())["rows"][index * 3 + trial]
+    script = repo / "scripts" / "trace_flight.py"
+    lines = subprocess.run(
+        [sys.executable, str(script), *common, "--world-index", str(index), "--trial", str(trial)],
+        check=True, capture_output=True, text=True, cwd=repo,
     ).stdout.splitlines()
-    assert out[-1] == f"outcome: {rows[1].outcome}"
-    assert sum(line[:3].strip().isdigit() for line in out) == round(rows[1].time_s / 1.0)
+    assert lines[0] == row["world"]
+    assert lines[-1] == f"outcome: {row['outcome']}"
+    # a primitive lasts 1 s in both (1 m at 1 m/s; the flight config's 0.5 m at 0.5 m/s)
+    assert sum(line[:3].strip().isdigit() for line in lines) == round(row["time_s"])
+
+
+def test_trace_flight_script_refuses_a_world_index_past_the_list() -> None:
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "trace_flight.py"
+    got = subprocess.run([sys.executable, str(script), "--world", "env01", "--world-index", "1"],
+                         capture_output=True, text=True, check=False)
+    assert got.returncode == 2 and "the list has 1 worlds" in got.stderr and "Traceback" not in got.stderr
 
 
 def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp_path) -> None:

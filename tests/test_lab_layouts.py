@@ -73,12 +73,12 @@ def test_layouts_are_reproducible_keep_the_room_and_path_and_each_leaves_a_route
         assert (clearance_m(w, ends) >= 0.3).all()
 
 
-def test_the_route_test_refuses_the_closed_two_box_lab_and_admits_the_one_box_lab(lab):
+def test_the_route_test_refuses_the_closed_lab_and_admits_the_others(lab):
     admits = _admits(lab)
     flown = lambda name: flight_setup_for(  # noqa: E731
         lab.config, load_flight_config(FLIGHT), [load_world(resolve_world_arg(name))])[1][0]
-    assert admits(flown("lab03")) and admits(flown("lab01"))
-    assert not admits(flown("lab02"))
+    assert admits(flown("lab03")) and admits(flown("lab01")) and admits(flown("lab02"))
+    assert not admits(flown("lab04"))
 
 
 def test_layouts_give_up_with_a_clear_error_when_no_draw_is_admitted(lab):

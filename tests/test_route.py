@@ -87,11 +87,11 @@ def test_the_cli_checks_the_labs_under_the_flight_config(tmp_path, capsys):
     import json
 
     out = tmp_path / "route.json"
-    rc = main(["route", "--world", "lab01", "--world", "lab02", "--flight-config", FLIGHT,
+    rc = main(["route", "--world", "lab02", "--world", "lab04", "--flight-config", FLIGHT,
                "--json", str(out)])
     text = capsys.readouterr().out
-    assert rc == 1  # lab02 has no route
-    assert "lab01-free: a route keeps" in text and "lab02-two-boxes: no route" in text
+    assert rc == 1  # lab04 has no route
+    assert "lab02-two-boxes: a route keeps" in text and "lab04-two-boxes-closed: no route" in text
     assert "no sequence that keeps the margins reaches the goal in 30 steps" in text
     reports = json.loads(out.read_text())["reports"]
     assert [r["route"] for r in reports] == [True, False]

@@ -71,3 +71,30 @@ def test_the_census_flies_the_flights_eval_flies_and_counts_each_of_their_decisi
     bad = subprocess.run([sys.executable, str(SCRIPT), "--world", str(missing)],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "nowhere.yaml" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_under_a_flight_config_the_census_flies_what_eval_flies_there(tmp_path) -> None:
+    """``--flight-config``: the lab flights of ``quadnav-sim eval --flight-config`` (its limits,
+    the room known to the filter, the depth noise), outcome for outcome and decision for decision;
+    the flags it sets itself are refused beside it."""
+    from sim_harness.cli import main
+
+    repo = SCRIPT.parents[1]
+    flags = ["--world", "lab02", "--flight-config", "config/flight.yaml", "--trials", "3", "--seed", "2"]
+    ev = tmp_path / "eval.json"
+    assert main(["eval", *flags, "--json", str(ev), "--no-progress"]) == 0
+    e = json.loads(ev.read_text())
+    out = tmp_path / "c.json"
+    run = subprocess.run([sys.executable, str(SCRIPT), *flags, "--json", str(out)],
+                         capture_output=True, text=True, cwd=repo)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+    outcomes: dict[str, int] = {}
+    for row in e["rows"]:
+        outcomes[row["outcome"]] = outcomes.get(row["outcome"], 0) + 1
+    assert r["outcomes"] == outcomes
+    assert sum(sum(c.values()) for c in r["decisions"].values()) == e["filter_overrules"]["decisions"]
+
+    both = subprocess.run([sys.executable, str(SCRIPT), *flags, "--max-steps", "10"],
+                          capture_output=True, text=True, cwd=repo)
+    assert both.returncode == 2 and "--flight-config sets" in both.stderr

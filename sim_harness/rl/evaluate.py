@@ -40,6 +40,7 @@ __all__ = [
     "FlightLimits",
     "GreedyFn",
     "NoisyDepthEnv",
+    "StepHook",
     "env_config_for_policy",
     "evaluate",
     "flight_eval_setup",
@@ -56,6 +57,9 @@ __all__ = [
 GreedyFn = Callable[[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]], NDArray[np.int64]]
 """Batched policy: depth (B, k_d, 32, 32), rel (B, k_p, 3), allowed (B, n_actions) -> actions (B,).
 ``allowed`` is the shield's verdict (all True when the shield is off)."""
+
+StepHook = Callable[[World, VecQuadNavEnv, NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]], None]
+"""``evaluate``'s ``on_step``: (world, env, depth, rel, actions) before each step of a world's env."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -273,6 +277,7 @@ def evaluate(
     depth_noise: DepthNoise | None = None,
     known_rooms: bool = True,
     overrules: FilterOverrules | None = None,
+    on_step: StepHook | None = None,
 ) -> list[EvalRow]:
     """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order.
 
@@ -282,7 +287,8 @@ def evaluate(
     ``geofence``/``altitude``) and, with ``known_rooms``, the geofence given to the filter with the
     world's room (:func:`known_room`). ``depth_noise``: the D435-like noise on every frame.
     ``overrules``: counts the decisions where the filter vetoed the DQN's first choice (costs one
-    more network pass per step when the filter is on)."""
+    more network pass per step when the filter is on). ``on_step``: called before every step with
+    the world, its env, the inputs the policy saw and the actions about to be flown (a trace)."""
     rows: list[EvalRow] = []
     for w_i, world in enumerate(worlds):
         cfg = env_config
@@ -304,6 +310,8 @@ def evaluate(
                 first = act(depth, rel, np.ones_like(env.allowed))
                 overrules.decisions += int(running.sum())
                 overrules.overruled += int((running & (first != actions)).sum())
+            if on_step is not None:
+                on_step(world, env, depth, rel, actions)
             depth, rel, _, term, trunc, info = env.step(actions)
             ended = term | trunc
             outcome[ended] = info["outcome"][ended]
