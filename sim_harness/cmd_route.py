@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim_harness.cmd_eval import (
+    _count,
+    _seed,
     add_flight_flags,
     at_flight_scale,
     flight_setup,
@@ -59,6 +61,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--grid-m", type=_grid_size, default=0.025, metavar="M",
         help="voxel size of the fill, in [0.005, 1] m (default 0.025; coarser for worlds over 6M cells)",
     )
+    p.add_argument(
+        "--trials", type=_count, default=None, metavar="N",
+        help="with --flight-config: also search from the N jittered starts of quadnav-sim eval "
+        "--flight-config with the same worlds in the same order, --trials N and --seed (from a "
+        "start with no sequence, a vehicle that tracks perfectly cannot reach the goal keeping the "
+        "margins from the true geometry)",
+    )
+    p.add_argument("--seed", type=_seed, default=0, help="with --trials: the eval's --seed (default 0)")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the reports as JSON")
     p.set_defaults(func=run, start_jitter_m=None)
 
@@ -67,10 +77,14 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
-    from sim_harness.rl.evaluate import env_config_for_policy, known_room
+    from sim_harness.rl.evaluate import env_config_for_policy, eval_starts, known_room
     from sim_harness.route import lattice_route, route_report
     from sim_harness.world import WorldError, load_world, resolve_world_arg
 
+    if args.trials is not None and not args.flight_config:
+        print("quadnav-sim route: --trials draws the starts of an eval under --flight-config: give one",
+              file=sys.stderr)
+        return 2
     if args.flight_config and args.primitive_scale is not None:
         print("quadnav-sim route: --flight-config sets the primitives: not with --primitive-scale",
               file=sys.stderr)
@@ -96,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     altitude = None if limits is None else (limits.altitude_floor_m, limits.altitude_ceiling_m)
     prims = env_cfg.primitives.build()
     rows, ok = [], True
-    for world in worlds:
+    for index, world in enumerate(worlds):
         shield = known_room(env_cfg.shield, world, limits)
         stop = env_cfg.reward.max_deviation_m  # the episode's deviation stop (flight: the supervisor's)
         report = route_report(world, shield, env_cfg.goal_radius_m, altitude, args.grid_m, stop)
@@ -105,7 +119,20 @@ def run(args: argparse.Namespace) -> int:
         )
         print(report.describe())
         print("  " + _describe_lattice(lattice, prims.scale_m, env_cfg.max_steps))
-        rows.append({**report.to_dict(), "primitives": lattice.to_dict()})
+        row = {**report.to_dict(), "primitives": lattice.to_dict()}
+        if args.trials is not None:
+            starts = eval_starts(world, index, args.trials, args.seed, env_cfg, limits)
+            found = [
+                lattice_route(world, prims, shield, env_cfg.goal_radius_m, env_cfg.max_steps, altitude, stop,
+                              start_m=s)
+                for s in starts
+            ]
+            print("  " + _describe_starts(found, args.trials, args.seed))
+            row["eval_starts"] = {
+                "trials": args.trials, "seed": args.seed, "starts_m": starts.round(4).tolist(),
+                "routes": [f.to_dict() for f in found],
+            }
+        rows.append(row)
         ok &= report.route and lattice.steps is not None
     if args.json:
         out = {
@@ -118,6 +145,16 @@ def run(args: argparse.Namespace) -> int:
         }
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     return 0 if ok else 1
+
+
+def _describe_starts(found: list[LatticeRoute], trials: int, seed: int) -> str:
+    steps = [f.steps for f in found if f.steps is not None]
+    undecided = sum(not f.decided for f in found)
+    text = (f"from the eval's {trials} starts (--trials {trials} --seed {seed}): a sequence from "
+            f"{len(steps)}")
+    if steps:
+        text += f" ({min(steps)}-{max(steps)} steps)"
+    return text + (f", {undecided} undecided" if undecided else "")
 
 
 def _describe_lattice(lattice: LatticeRoute, scale_m: float, max_steps: int) -> str:

@@ -267,6 +267,7 @@ def lattice_route(
     altitude_m: tuple[float, float] | None = None,
     max_deviation_m: float | None = None,
     batch: int = 256,
+    start_m: NDArray | None = None,
 ) -> LatticeRoute:
     """A sequence of primitives from ``world``'s path start (at rest) to within ``goal_radius_m``
     of its goal (or past its end) in at most ``max_steps``, each primitive allowed by ``shield``'s
@@ -275,16 +276,18 @@ def lattice_route(
     steps so far plus :data:`GREED` times a lower bound of the steps to go, ``batch`` states
     expanded at a time, so the sequence found is short but not always the shortest); a state is
     dropped only when even the lower bound overruns the step limit, and every other is expanded
-    before "none" is answered."""
+    before "none" is answered. ``start_m``: start there, at rest, instead of the path's start (as
+    an eval's jittered start)."""
     path = world.path
+    start = path.start_m.astype(np.float64) if start_m is None else np.asarray(start_m, dtype=np.float64)
     step_m = float(np.linalg.norm(prims.end_displacement_m(np.arange(prims.n_actions)), axis=1).max())
 
     def to_go(p: NDArray) -> NDArray:  # steps at least, from p to the goal ball (admissible)
         return np.maximum(np.linalg.norm(p - path.goal_m, axis=-1) - goal_radius_m, 0.0) / step_m
 
-    pos_l, vel_l, g_l = [path.start_m.astype(np.float64)], [np.zeros(3)], [0]
-    seen: set[tuple[int, ...]] = {(*np.round(path.start_m / 0.01).astype(int).tolist(), -1)}
-    heap: list[tuple[float, int]] = [(float(to_go(path.start_m)), 0)]
+    pos_l, vel_l, g_l = [start], [np.zeros(3)], [0]
+    seen: set[tuple[int, ...]] = {(*np.round(start / 0.01).astype(int).tolist(), -1)}
+    heap: list[tuple[float, int]] = [(float(to_go(start)), 0)]
     while heap:
         take = [heapq.heappop(heap)[1] for _ in range(min(batch, len(heap)))]
         pos, vel = np.array([pos_l[i] for i in take]), np.array([vel_l[i] for i in take])

@@ -98,3 +98,48 @@ def test_the_cli_checks_the_labs_under_the_flight_config(tmp_path, capsys):
     assert reports[0]["primitives"]["steps"] <= 30 and reports[1]["primitives"]["steps"] is None
     assert main(["route", "--world", "lab01", "--flight-config", FLIGHT]) == 0
     assert main(["route", "--world", "lab01", "--shield", "off"]) == 2
+
+
+def test_the_cli_searches_from_the_evals_own_starts(tmp_path, capsys):
+    """``--trials N --seed E``: the lattice search from each of the N starts ``quadnav-sim eval
+    --flight-config`` flies (those of ``evaluate``'s env, world by world in list order); none in
+    the closed lab; the flags that do not go together are refused with exit 2."""
+    import json
+
+    import numpy as np
+
+    from quadnav_onboard.daemon.config import load_flight_config
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from sim_harness.noise import DepthNoise
+    from sim_harness.rl.evaluate import eval_starts, evaluate, flight_eval_setup, policy_greedy_fn
+    from sim_harness.world import load_world, resolve_world_arg
+
+    out = tmp_path / "route.json"
+    rc = main(["route", "--world", "lab02", "--world", "lab04", "--flight-config", FLIGHT,
+               "--trials", "3", "--seed", "5", "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 1  # lab04: no route from the path's start
+    assert "from the eval's 3 starts (--trials 3 --seed 5): a sequence from 0" in text
+    reports = json.loads(out.read_text())["reports"]
+    assert [r["eval_starts"]["trials"] for r in reports] == [3, 3]
+    assert all(r["steps"] is None for r in reports[1]["eval_starts"]["routes"])
+    assert all(r["decided"] for rep in reports for r in rep["eval_starts"]["routes"])
+
+    # the starts are the eval's: the positions evaluate() flies from, noise or not
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    worlds = [load_world(resolve_world_arg(w)) for w in ("lab02", "lab04")]
+    env_cfg, worlds, limits = flight_eval_setup(policy, load_flight_config(FLIGHT), worlds)
+    flown: dict[str, np.ndarray] = {}
+
+    def first(world, env, *_):
+        flown.setdefault(world.name, env.pos_m.copy())
+
+    evaluate(policy_greedy_fn(policy), worlds, 3, 5, env_cfg, limits=limits, depth_noise=DepthNoise(),
+             on_step=first)
+    for i, w in enumerate(worlds):
+        np.testing.assert_allclose(reports[i]["eval_starts"]["starts_m"], flown[w.name], atol=1e-4)
+        np.testing.assert_allclose(eval_starts(w, i, 3, 5, env_cfg, limits), flown[w.name])
+    assert not np.allclose(flown[worlds[0].name], worlds[0].path.start_m)  # jittered
+
+    assert main(["route", "--world", "lab02", "--trials", "3"]) == 2  # no flight config
+    assert "--trials draws the starts of an eval under --flight-config" in capsys.readouterr().err

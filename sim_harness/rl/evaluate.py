@@ -42,6 +42,7 @@ __all__ = [
     "NoisyDepthEnv",
     "StepHook",
     "env_config_for_policy",
+    "eval_starts",
     "evaluate",
     "flight_eval_setup",
     "flight_setup_for",
@@ -265,6 +266,31 @@ def world_seed(seed: int, index: int) -> int:
     return seed * 1009 + index
 
 
+def _world_env(
+    world: World, index: int, trials: int, seed: int, env_config: EnvConfig,
+    limits: FlightLimits | None, depth_noise: DepthNoise | None, known_rooms: bool,
+) -> VecQuadNavEnv:
+    """The env :func:`evaluate` flies world ``index`` of its list in (not yet reset)."""
+    cfg = env_config
+    if known_rooms and cfg.shield.enabled:
+        cfg = dataclasses.replace(cfg, shield=known_room(cfg.shield, world, limits))
+    w_seed = world_seed(seed, index)
+    if depth_noise is None:
+        return VecQuadNavEnv([world], trials, seed=w_seed, config=cfg, autoreset=False)
+    return NoisyDepthEnv([world], trials, seed=w_seed, config=cfg, autoreset=False,
+                         noise=depth_noise, noise_seed=w_seed + 7919)
+
+
+def eval_starts(
+    world: World, index: int, trials: int, seed: int, env_config: EnvConfig,
+    limits: FlightLimits | None = None, depth_noise: DepthNoise | None = None,
+) -> NDArray[np.float64]:
+    """Where the ``trials`` flights of :func:`evaluate` in world ``index`` of its list start (trials, 3)."""
+    env = _world_env(world, index, trials, seed, env_config, limits, depth_noise, True)
+    env.reset()
+    return env.pos_m.copy()
+
+
 def evaluate(
     act: GreedyFn,
     worlds: Sequence[World],
@@ -291,15 +317,8 @@ def evaluate(
     the world, its env, the inputs the policy saw and the actions about to be flown (a trace)."""
     rows: list[EvalRow] = []
     for w_i, world in enumerate(worlds):
-        cfg = env_config
-        if known_rooms and cfg.shield.enabled:
-            cfg = dataclasses.replace(cfg, shield=known_room(cfg.shield, world, limits))
-        w_seed = world_seed(seed, w_i)
-        if depth_noise is None:
-            env = VecQuadNavEnv([world], trials, seed=w_seed, config=cfg, autoreset=False)
-        else:
-            env = NoisyDepthEnv([world], trials, seed=w_seed, config=cfg, autoreset=False,
-                                 noise=depth_noise, noise_seed=w_seed + 7919)
+        env = _world_env(world, w_i, trials, seed, env_config, limits, depth_noise, known_rooms)
+        cfg = env.config
         depth, rel = env.reset()
         outcome = np.full(trials, None, dtype=object)
         progress = np.zeros(trials)
