@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """Step-by-step trace of one evaluation flight: where the vehicle was, what the filter allowed,
-what the DQN ranked first and what it flew (for reading a crash or a stall of ``quadnav-sim eval``).
+what the DQN ranked first and what it flew, and each of its first three primitives' clearance as
+the filter judged it and from the true geometry (for reading a crash or a stall of ``quadnav-sim
+eval``).
 
 The flight is trial T of world I of ``quadnav-sim eval`` run with the same flags: it is flown by
 the eval's own loop (``evaluate``: same worlds, seeds, filter and the room known to it, scale, and
@@ -20,6 +22,22 @@ import argparse
 import sys
 
 import numpy as np
+
+
+def true_clearance(world, env, i: int) -> np.ndarray:
+    """Each primitive's clearance (A,) from ``world``'s true geometry along the path the filter
+    predicts for env ``i`` (its samples, look-ahead included): beside the filter's own clearance
+    (from the points the camera saw, less the known room and band), it tells a move the room
+    closes from one only the filter's view closes."""
+    from quadnav_onboard.shield import primitive_samples
+    from quadnav_onboard.step import step_inputs
+    from sim_harness.collision import clearance_m
+
+    sl = slice(i, i + 1)
+    yaw = step_inputs(world.path, env.steps[sl], env.prims.duration_s, env.pos_m[sl]).yaw_rad
+    s = primitive_samples(env.prims, env.cmd_pos_m[sl], env.cmd_vel_m_s[sl], yaw, env.config.shield,
+                          pos_world_m=env.pos_m[sl], vel_world_m_s=env.vel_m_s[sl])
+    return clearance_m(world, s.reshape(-1, 3)).reshape(s.shape[:3]).min(axis=2)[0]
 
 
 def main() -> int:
@@ -69,11 +87,13 @@ def main() -> int:
         if world is not target or env.done[i]:
             return
         q = policy.q_values_batch(depth, rel)
-        top = [(int(a), bool(env.allowed[i, a]), round(float(env.clearance_m[i, a]), 2))
+        true = true_clearance(world, env, i)
+        seen = env.clearance_m[i]
+        top = [(int(a), bool(env.allowed[i, a]), round(float(seen[a]), 2), round(float(true[a]), 2))
                for a in np.argsort(-q[i])[:3]]
         print(f"{steps[0]:3d} pos {np.round(env.pos_m[i], 2)} allowed {int(env.allowed[i].sum()):2d} "
               f"flies {int(actions[i]):2d} {directions[actions[i]].astype(int)}  "
-              f"top 3 (action, allowed, clearance m) {top}")
+              f"top 3 (action, allowed, clearance m: the filter's, from the true geometry) {top}")
         steps[0] += 1
 
     # the worlds before it are flown too: a world's seed is its place in the list (world_seed)

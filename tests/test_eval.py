@@ -220,7 +220,13 @@ def test_trace_flight_script_replays_the_flight_eval_flew(flags, index, trial, t
     assert lines[0] == row["world"]
     assert lines[-1] == f"outcome: {row['outcome']}"
     # a primitive lasts 1 s in both (1 m at 1 m/s; the flight config's 0.5 m at 0.5 m/s)
-    assert sum(line[:3].strip().isdigit() for line in lines) == round(row["time_s"])
+    steps = [line for line in lines if line[:3].strip().isdigit()]
+    assert len(steps) == round(row["time_s"])
+    import ast
+
+    for line in steps:  # the first three: (action, allowed, the filter's clearance, the true one)
+        top = ast.literal_eval(line[line.rindex("[("):])
+        assert len(top) == 3 and all(len(x) == 4 and np.isfinite(x[2]) and np.isfinite(x[3]) for x in top)
 
 
 def test_trace_flight_script_refuses_a_world_index_past_the_list() -> None:
