@@ -56,6 +56,7 @@ __all__ = [
     "shield_config_from_meta",
     "shield_verdict",
     "view_points_heading",
+    "within_known_space",
 ]
 
 INPUT_SIZE = OUT_SIZE
@@ -637,6 +638,26 @@ def band_path(waypoints_m: tuple[tuple[float, float, float], ...]) -> RoughPath:
         raise ValueError(f"band_waypoints_m: {exc}") from None
 
 
+def within_known_space(
+    clearance_m: NDArray[np.float64], samples_world_m: NDArray, cfg: ShieldConfig,
+    fence_min_m: ArrayLike | None = None, fence_max_m: ArrayLike | None = None,
+) -> NDArray[np.float64]:
+    """``clearance_m`` (N, A) of the primitives' samples (N, A, S, 3), lowered below
+    ``cfg.clearance_m`` for each one that comes within ``fence_margin_m`` of leaving the known room
+    (``fence_min_m``/``fence_max_m``, default the config's) or within ``band_margin_m`` of leaving
+    the config's deviation band: those are vetoed as if near a wall (see :func:`shield_verdict`)."""
+    clearance = clearance_m
+    if fence_min_m is None or fence_max_m is None:
+        fence_min_m, fence_max_m = cfg.fence_min_m, cfg.fence_max_m
+    if fence_min_m is not None and fence_max_m is not None:
+        inside = fence_clearance(samples_world_m, fence_min_m, fence_max_m)  # less than the margin: vetoed
+        clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.fence_margin_m, 0.0))
+    if cfg.band_waypoints_m is not None and cfg.band_half_width_m is not None:
+        inside = band_clearance(samples_world_m, band_path(cfg.band_waypoints_m), cfg.band_half_width_m)
+        clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.band_margin_m, 0.0))
+    return clearance
+
+
 def shield_verdict(
     prims: PrimitiveSet,
     points_world_m: ArrayLike,
@@ -671,14 +692,7 @@ def shield_verdict(
         floor = np.broadcast_to(np.asarray(floor_z_m, dtype=np.float64), clearance.shape[:1])[:, None]
         above = np.maximum(samples[..., 2].min(axis=-1) - floor, 0.0)  # NaN: floor unknown
         clearance = np.fmin(clearance, above)  # fmin keeps clearance where above is NaN
-    if fence_min_m is None or fence_max_m is None:
-        fence_min_m, fence_max_m = cfg.fence_min_m, cfg.fence_max_m
-    if fence_min_m is not None and fence_max_m is not None:
-        inside = fence_clearance(samples, fence_min_m, fence_max_m)  # less than the margin: vetoed
-        clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.fence_margin_m, 0.0))
-    if cfg.band_waypoints_m is not None and cfg.band_half_width_m is not None:
-        inside = band_clearance(samples, band_path(cfg.band_waypoints_m), cfg.band_half_width_m)
-        clearance = np.minimum(clearance, np.maximum(cfg.clearance_m + inside - cfg.band_margin_m, 0.0))
+    clearance = within_known_space(clearance, samples, cfg, fence_min_m, fence_max_m)
     seen = None
     if cfg.require_seen or cfg.seen_level_tol_m is not None:
         seen = primitive_seen_free(samples, view_depth_m, view_pose, pos_world_m, cfg)

@@ -11,7 +11,9 @@ filter). Each decision of such a flight falls in one of four classes:
   overrule the DQN's first choice: the DQN itself chose to hold;
 - ``overruled_back``: it flew one that does not, a forward one being allowed, because the filter
   vetoed the DQN's first choice and the DQN ranked a non-forward one next;
-- ``boxed_in``: the filter allowed no forward primitive.
+- ``boxed_in``: the filter allowed no forward primitive. Of these, it also counts those where
+  the filter, had it seen the true geometry (``sim_harness.route.true_geometry_verdict``: the
+  same predicted paths, clearance and known space), would have allowed one: boxed in by its view.
 
 Trace development worlds, never the test set (procedural seed 4242) when choosing anything.
 
@@ -50,9 +52,11 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
     """Fly the eval's flights (under a flight config: its ``limits`` and ``depth_noise``, as
     ``quadnav-sim eval --flight-config`` flies them); count the classes of each outcome's decisions."""
     from sim_harness.rl.evaluate import evaluate
+    from sim_harness.route import true_geometry_verdict
 
     forward = np.asarray(env_cfg.primitives.directions)[:, 0] > 0
     per_world: list[list[np.ndarray]] = [[]]
+    opened: list[list[np.ndarray]] = [[]]  # per decision: would the true geometry allow a forward one
 
     def act(depth, rel, allowed):
         q = policy.q_values_batch(depth, rel)
@@ -60,17 +64,27 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
         per_world[-1].append(cls)
         return flown
 
-    rows = evaluate(act, worlds, trials, seed, env_cfg, on_world_done=lambda _w: per_world.append([]),
-                    limits=limits, depth_noise=depth_noise)
+    def looks(world, env, depth, rel, actions) -> None:
+        opened[-1].append((true_geometry_verdict(env)[0] & forward[None, :]).any(axis=1))
+
+    def next_world(_w) -> None:
+        per_world.append([])
+        opened.append([])
+
+    rows = evaluate(act, worlds, trials, seed, env_cfg, on_world_done=next_world,
+                    limits=limits, depth_noise=depth_noise, on_step=looks)
     counts: dict[str, Counter] = {}
     failures: Counter = Counter()
+    boxed_by_view: Counter = Counter()
     for w, world in enumerate(worlds):
         steps = np.stack(per_world[w])  # (calls, trials)
+        open_true = np.stack(opened[w])
         for t in range(trials):
             row = rows[w * trials + t]
             n = round(row.time_s / env_cfg.primitives.duration_s)
             c = counts.setdefault(row.outcome, Counter())
             c.update(CLASSES[k] for k in steps[:n, t])
+            boxed_by_view[row.outcome] += int(((steps[:n, t] == 3) & open_true[:n, t]).sum())
             if row.outcome not in ("goal", "crash"):
                 failures[world.name] += 1
     outcomes = Counter(r.outcome for r in rows)
@@ -78,6 +92,7 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
         "flights": len(rows),
         "outcomes": dict(outcomes),
         "decisions": {o: {k: int(c[k]) for k in CLASSES} for o, c in sorted(counts.items())},
+        "boxed_in_by_the_view": {o: int(boxed_by_view[o]) for o in sorted(counts)},
         "failures_by_world": dict(failures.most_common()),
     }
 
@@ -125,6 +140,7 @@ def main() -> int:
     for o, c in out["decisions"].items():
         n = sum(c.values())
         print(f"{o:>10} {n:9d} " + " ".join(f"{c[k]:7d} ({c[k] / max(n, 1):5.1%})" for k in CLASSES))
+    print("boxed in, though the true geometry would allow a forward primitive:", out["boxed_in_by_the_view"])
     print("flights short of the goal without a crash, by world:", out["failures_by_world"])
     if args.json:
         with open(args.json, "w") as f:

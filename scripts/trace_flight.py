@@ -24,26 +24,11 @@ import sys
 import numpy as np
 
 
-def true_clearance(world, env, i: int) -> np.ndarray:
-    """Each primitive's clearance (A,) from ``world``'s true geometry along the path the filter
-    predicts for env ``i`` (its samples, look-ahead included): beside the filter's own clearance
-    (from the points the camera saw, less the known room and band), it tells a move the room
-    closes from one only the filter's view closes."""
-    from quadnav_onboard.shield import primitive_samples
-    from quadnav_onboard.step import step_inputs
-    from sim_harness.collision import clearance_m
-
-    sl = slice(i, i + 1)
-    yaw = step_inputs(world.path, env.steps[sl], env.prims.duration_s, env.pos_m[sl]).yaw_rad
-    s = primitive_samples(env.prims, env.cmd_pos_m[sl], env.cmd_vel_m_s[sl], yaw, env.config.shield,
-                          pos_world_m=env.pos_m[sl], vel_world_m_s=env.vel_m_s[sl])
-    return clearance_m(world, s.reshape(-1, 3)).reshape(s.shape[:3]).min(axis=2)[0]
-
-
 def main() -> int:
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH
     from sim_harness.cmd_eval import add_flight_flags, load_flights
     from sim_harness.rl.evaluate import evaluate, policy_greedy_fn
+    from sim_harness.route import true_geometry_verdict
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
@@ -87,7 +72,7 @@ def main() -> int:
         if world is not target or env.done[i]:
             return
         q = policy.q_values_batch(depth, rel)
-        true = true_clearance(world, env, i)
+        true = true_geometry_verdict(env, np.array([i]))[1][0]
         seen = env.clearance_m[i]
         top = [(int(a), bool(env.allowed[i, a]), round(float(seen[a]), 2), round(float(true[a]), 2))
                for a in np.argsort(-q[i])[:3]]

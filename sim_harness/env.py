@@ -181,6 +181,10 @@ class VecQuadNavEnv:
         """Each env's inputs of its next step (the last step's end, or the episode's start)."""
 
     # -- per-world helpers ---------------------------------------------------------------------
+    def world_shield(self, w: int) -> ShieldConfig:
+        """The filter the vehicles in world ``w`` fly behind (with its deviation band, if known)."""
+        return self.config.shield if self._world_shields is None else self._world_shields[w]
+
     def _groups(self, mask: NDArray[np.bool_]) -> list[tuple[World, NDArray[np.int64]]]:
         ids = np.flatnonzero(mask)
         return [(self.worlds[w], ids[self.world_idx[ids] == w]) for w in np.unique(self.world_idx[ids])]

@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
@@ -36,11 +36,30 @@ from numpy.typing import NDArray
 
 from quadnav_onboard.frames import body_to_world
 from quadnav_onboard.primitives import PrimitiveSet
-from quadnav_onboard.shield import ShieldConfig, band_clearance, band_path, fence_clearance, primitive_samples
+from quadnav_onboard.shield import (
+    ShieldConfig,
+    band_clearance,
+    band_path,
+    fence_clearance,
+    primitive_samples,
+    within_known_space,
+)
+from quadnav_onboard.step import step_inputs
 from sim_harness.collision import clearance_m
 from sim_harness.world import World
 
-__all__ = ["LIMITS", "LatticeRoute", "RouteReport", "lattice_route", "margin_field", "route_report"]
+if TYPE_CHECKING:
+    from sim_harness.env import VecQuadNavEnv
+
+__all__ = [
+    "LIMITS",
+    "LatticeRoute",
+    "RouteReport",
+    "lattice_route",
+    "margin_field",
+    "route_report",
+    "true_geometry_verdict",
+]
 
 LIMITS = ("clearance", "room", "deviation", "altitude")
 """The margins the check keeps, by name: ``clearance`` from every solid (obstacles and walls),
@@ -256,6 +275,29 @@ def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArr
     d_world = body_to_world(np.broadcast_to(prims.end_displacement_m(np.arange(a)), (m, a, 3)), yaw[:, None])
     v_world = body_to_world(np.broadcast_to(prims.end_velocity_m_s(np.arange(a)), (m, a, 3)), yaw[:, None])
     return ok, pos[:, None, :] + d_world, v_world
+
+
+def true_geometry_verdict(env: VecQuadNavEnv, ids: NDArray[np.int64] | None = None
+                          ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """What ``env``'s filter would allow at the next decision of the vehicles ``ids`` (default:
+    all) if it saw the true geometry: each primitive's path predicted from the vehicle's state as
+    the filter predicts it (look-ahead included), its clearance from the world's solids, lowered
+    by the known room and the deviation band as the filter lowers it; (allowed (M, A) by
+    ``clearance_m`` alone, without the least-bad fallback; clearance (M, A))."""
+    ids = np.arange(env.n_envs) if ids is None else np.asarray(ids, dtype=np.int64)
+    allowed = np.zeros((ids.size, env.prims.n_actions), dtype=bool)
+    clear = np.zeros((ids.size, env.prims.n_actions))
+    for w in np.unique(env.world_idx[ids]):
+        rows = np.flatnonzero(env.world_idx[ids] == w)
+        sel = ids[rows]
+        world, shield = env.worlds[w], env.world_shield(int(w))
+        yaw = step_inputs(world.path, env.steps[sel], env.prims.duration_s, env.pos_m[sel]).yaw_rad
+        s = primitive_samples(env.prims, env.cmd_pos_m[sel], env.cmd_vel_m_s[sel], yaw, shield,
+                              pos_world_m=env.pos_m[sel], vel_world_m_s=env.vel_m_s[sel])
+        c = clearance_m(world, s.reshape(-1, 3)).reshape(s.shape[:3]).min(axis=2)
+        clear[rows] = within_known_space(c, s, shield)
+        allowed[rows] = clear[rows] >= shield.clearance_m
+    return allowed, clear
 
 
 def lattice_route(

@@ -143,3 +143,33 @@ def test_the_cli_searches_from_the_evals_own_starts(tmp_path, capsys):
 
     assert main(["route", "--world", "lab02", "--trials", "3"]) == 2  # no flight config
     assert "--trials draws the starts of an eval under --flight-config" in capsys.readouterr().err
+
+
+def test_the_true_geometry_verdict_is_the_lattice_check_for_a_vehicle_at_rest_on_its_point():
+    """``true_geometry_verdict`` (what the env's filter would allow, seeing the true geometry)
+    agrees primitive for primitive with the route search's own check (``_allowed``) for vehicles
+    at rest on their commanded points, the lab's room and deviation band known to both; and it
+    vetoes something there (the lab's corner start leaves no sideways move)."""
+    import dataclasses
+
+    import numpy as np
+
+    from quadnav_onboard.daemon.config import load_flight_config
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from sim_harness.env import VecQuadNavEnv
+    from sim_harness.rl.evaluate import flight_eval_setup, known_room
+    from sim_harness.route import _allowed, true_geometry_verdict
+    from sim_harness.world import load_world, resolve_world_arg
+
+    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    env_cfg, worlds, limits = flight_eval_setup(
+        policy, load_flight_config(FLIGHT), [load_world(resolve_world_arg("lab02"))]
+    )
+    shield = known_room(env_cfg.shield, worlds[0], limits)
+    cfg = dataclasses.replace(env_cfg, shield=shield)
+    env = VecQuadNavEnv(worlds, 4, seed=3, config=cfg, autoreset=False)
+    env.reset()
+    allowed, clear = true_geometry_verdict(env)
+    expected, _, _ = _allowed(worlds[0], env.prims, shield, env.cmd_pos_m.copy(), np.zeros((4, 3)), None)
+    np.testing.assert_array_equal(allowed, expected)
+    assert allowed.any() and not allowed.all() and np.isfinite(clear).all()

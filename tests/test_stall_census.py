@@ -94,6 +94,8 @@ def test_under_a_flight_config_the_census_flies_what_eval_flies_there(tmp_path) 
         outcomes[row["outcome"]] = outcomes.get(row["outcome"], 0) + 1
     assert r["outcomes"] == outcomes
     assert sum(sum(c.values()) for c in r["decisions"].values()) == e["filter_overrules"]["decisions"]
+    for outcome, n in r["boxed_in_by_the_view"].items():  # a share of the boxed-in decisions
+        assert 0 <= n <= r["decisions"][outcome]["boxed_in"]
 
     both = subprocess.run([sys.executable, str(SCRIPT), *flags, "--max-steps", "10"],
                           capture_output=True, text=True, cwd=repo)
