@@ -55,38 +55,34 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
     from sim_harness.route import true_geometry_verdict
 
     forward = np.asarray(env_cfg.primitives.directions)[:, 0] > 0
-    per_world: list[list[np.ndarray]] = [[]]
-    opened: list[list[np.ndarray]] = [[]]  # per decision: would the true geometry allow a forward one
+    chosen: list[np.ndarray] = []  # the classes of the batch the policy just chose for
+    decisions: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # world, trials, class, open
+    world_no = [0]
 
     def act(depth, rel, allowed):
         q = policy.q_values_batch(depth, rel)
         flown, cls = classify(q, np.asarray(allowed, dtype=bool), forward)
-        per_world[-1].append(cls)
+        chosen[:] = [cls]
         return flown
 
-    def looks(world, env, depth, rel, actions) -> None:
-        opened[-1].append((true_geometry_verdict(env)[0] & forward[None, :]).any(axis=1))
+    def looks(world, env, depth, rel, actions) -> None:  # once per step, after act: the running flights
+        running = np.flatnonzero(~env.done)
+        opened = (true_geometry_verdict(env, running)[0] & forward[None, :]).any(axis=1)
+        decisions.append((world_no[0], running, chosen[0][running], opened))
 
     def next_world(_w) -> None:
-        per_world.append([])
-        opened.append([])
+        world_no[0] += 1
 
     rows = evaluate(act, worlds, trials, seed, env_cfg, on_world_done=next_world,
                     limits=limits, depth_noise=depth_noise, on_step=looks)
     counts: dict[str, Counter] = {}
-    failures: Counter = Counter()
     boxed_by_view: Counter = Counter()
-    for w, world in enumerate(worlds):
-        steps = np.stack(per_world[w])  # (calls, trials)
-        open_true = np.stack(opened[w])
-        for t in range(trials):
-            row = rows[w * trials + t]
-            n = round(row.time_s / env_cfg.primitives.duration_s)
-            c = counts.setdefault(row.outcome, Counter())
-            c.update(CLASSES[k] for k in steps[:n, t])
-            boxed_by_view[row.outcome] += int(((steps[:n, t] == 3) & open_true[:n, t]).sum())
-            if row.outcome not in ("goal", "crash"):
-                failures[world.name] += 1
+    for w, running, cls, opened in decisions:
+        for t, k, o in zip(running.tolist(), cls.tolist(), opened.tolist(), strict=True):
+            outcome = rows[w * trials + t].outcome
+            counts.setdefault(outcome, Counter())[CLASSES[k]] += 1
+            boxed_by_view[outcome] += int(k == 3 and o)
+    failures = Counter(r.world for r in rows if r.outcome not in ("goal", "crash"))
     outcomes = Counter(r.outcome for r in rows)
     return {
         "flights": len(rows),
@@ -99,35 +95,16 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
 
 def main() -> int:
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH
-    from sim_harness.cmd_eval import add_flight_flags, load_flights
+    from sim_harness.cmd_eval import add_flights_flags, load_flights
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
-    ap.add_argument("--world", action="append", default=None, help="as eval's (repeat); default Env 1-10")
-    ap.add_argument("--procedural", type=int, default=None, metavar="N")
-    ap.add_argument("--procedural-seed", type=int, default=4242)
-    ap.add_argument("--trials", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=0, help="the eval's --seed")
-    ap.add_argument("--start-jitter-m", type=float, default=None, metavar="M", help="as eval's (default 0.5)")
-    ap.add_argument("--max-steps", type=int, default=None, help="as eval's (default 120, scaled)")
-    add_flight_flags(ap, shield_default="on")  # --primitive-scale, --shield, --shield-set: as eval
-    ap.add_argument("--flight-config", default=None, metavar="FLIGHT.yaml",
-                    help="as eval's: fly under this flight config, its limits and the depth noise")
+    add_flights_flags(ap, shield_default="on", trials_default=10)  # the eval's, its filter forced on
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args()
     if args.shield == "off":
         print("stall_census: it counts flights with the filter (--shield on or model)", file=sys.stderr)
         return 2
-    if args.trials < 1 or any(n is not None and n < 1 for n in (args.procedural, args.max_steps)):
-        print("stall_census: --trials, --procedural and --max-steps must be >= 1", file=sys.stderr)
-        return 2
-    if args.start_jitter_m is not None and not 0 <= args.start_jitter_m < float("inf"):
-        print(f"stall_census: --start-jitter-m must be >= 0 and finite, got {args.start_jitter_m}",
-              file=sys.stderr)
-        return 2
-    if args.world and args.procedural is not None:
-        print("stall_census: give --world or --procedural N, not both", file=sys.stderr)
-        return 2
+    args.model = args.model or str(DEFAULT_MODEL_PATH)
     loaded = load_flights("stall_census", args.model, args)
     if loaded is None:
         return 2

@@ -26,33 +26,20 @@ import numpy as np
 
 def main() -> int:
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH
-    from sim_harness.cmd_eval import add_flight_flags, load_flights
+    from sim_harness.cmd_eval import add_flights_flags, load_flights
     from sim_harness.rl.evaluate import evaluate, policy_greedy_fn
     from sim_harness.route import true_geometry_verdict
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", default=str(DEFAULT_MODEL_PATH))
-    ap.add_argument("--world", action="append", default=None, help="as eval's (repeat); default Env 1-10")
-    ap.add_argument("--procedural", type=int, default=None, metavar="N")
-    ap.add_argument("--procedural-seed", type=int, default=4242)
+    add_flights_flags(ap, shield_default="on", trials_default=10)  # the eval's, its filter forced on
     ap.add_argument("--world-index", type=int, default=0, help="which world of the list (from 0)")
-    ap.add_argument("--trial", type=int, default=0)
-    ap.add_argument("--trials", type=int, default=10, help="trials per world, as in the eval run")
-    ap.add_argument("--seed", type=int, default=0, help="the eval run's --seed")
-    ap.add_argument("--start-jitter-m", type=float, default=None, metavar="M", help="as eval's (default 0.5)")
-    ap.add_argument("--max-steps", type=int, default=None, help="as eval's (default 120, scaled)")
-    add_flight_flags(ap, shield_default="on")  # --primitive-scale, --shield, --shield-set: as eval
-    ap.add_argument("--flight-config", default=None, metavar="FLIGHT.yaml",
-                    help="as eval's: fly under this flight config, its limits and the depth noise")
+    ap.add_argument("--trial", type=int, default=0, help="which trial of that world (from 0)")
     args = ap.parse_args()
-    if args.world and args.procedural is not None:
-        print("trace_flight: give --world or --procedural N, not both", file=sys.stderr)
-        return 2
     if not (0 <= args.trial < args.trials) or args.world_index < 0:
         print(f"trace_flight: need 0 <= --trial < --trials ({args.trials}) and --world-index >= 0",
               file=sys.stderr)
         return 2
-    loaded = load_flights("trace_flight", args.model, args)
+    loaded = load_flights("trace_flight", args.model or DEFAULT_MODEL_PATH, args)
     if loaded is None:
         return 2
     policy, flights = loaded

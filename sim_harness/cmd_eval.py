@@ -21,12 +21,15 @@ if TYPE_CHECKING:
 __all__ = [
     "Flights",
     "add_flight_flags",
+    "add_flights_flags",
     "add_parser",
     "at_flight_scale",
+    "count_arg",
     "flight_setup",
     "flights_from_flags",
     "load_flights",
     "run",
+    "seed_arg",
     "shield_from_flags",
     "sim_env_config",
     "worlds_from_flags",
@@ -129,6 +132,8 @@ def flights_from_flags(policy: Policy, args: argparse.Namespace) -> Flights:
     ``--depth-noise off``, the depth noise; ``--layouts`` of its rooms) or the sim's env
     (:func:`sim_env_config`). Raises ValueError on flags that do not go together, WorldError and
     ConfigError on bad files."""
+    if args.world and args.procedural is not None:
+        raise ValueError("give --world or --procedural N, not both")
     flight_config = getattr(args, "flight_config", None)
     if flight_config and (args.primitive_scale is not None or args.max_steps is not None):
         raise ValueError("--flight-config sets the primitives and the step limit: not with "
@@ -188,7 +193,7 @@ def _non_negative(text: str) -> float:
     return value
 
 
-def _seed(text: str) -> int:
+def seed_arg(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -198,7 +203,7 @@ def _seed(text: str) -> int:
     return value
 
 
-def _count(text: str) -> int:
+def count_arg(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -234,13 +239,10 @@ def add_flight_flags(p: argparse.ArgumentParser, shield_default: str) -> None:
     )
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "eval",
-        help="evaluate a checkpoint: the paper's table per world and trial, then success rates",
-        description="Evaluate a checkpoint greedily. Prints navigation distance, time, crash, total "
-        "reward and outcome per world and trial, then the success and collision-free rates.",
-    )
+def add_flights_flags(p: argparse.ArgumentParser, shield_default: str, trials_default: int,
+                      trials_note: str = "") -> None:
+    """The flags that say which flights an eval flies (:func:`flights_from_flags`), shared by
+    ``quadnav-sim eval`` and the scripts that replay its flights (the census, the trace)."""
     p.add_argument(
         "--model", default=None, help="checkpoint (default: the shipped quadnav_onboard/models/default.pt)"
     )
@@ -253,7 +255,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--procedural",
-        type=_count,
+        type=count_arg,
         default=None,
         metavar="N",
         help="fly N >= 1 procedurally generated worlds of the paper's families instead of --world "
@@ -261,29 +263,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--procedural-seed",
-        type=_seed,
+        type=seed_arg,
         default=4242,
         help="seed of the generated worlds (default 4242; training uses 20261124)",
     )
-    p.add_argument(
-        "--layouts",
-        type=_count,
-        default=None,
-        metavar="N",
-        help="with --flight-config: fly N >= 1 random box layouts of each --world's room instead of "
-        "the world (sim_harness/lab_layouts.py: 0-2 boxes near the path, each with a sequence of "
-        "primitives that keeps the filter's margins to the goal); see --layout-seed",
-    )
-    p.add_argument(
-        "--layout-seed",
-        type=_seed,
-        default=4242,
-        help="seed of the layouts (default 4242; recipes/lab.yaml trains on 20261203)",
-    )
-    p.add_argument("--trials", type=_count, default=5, help="trials per world (default 5, as in the paper)")
+    p.add_argument("--trials", type=count_arg, default=trials_default,
+                   help=f"trials per world (default {trials_default}{trials_note})")
     p.add_argument(
         "--seed",
-        type=_seed,
+        type=seed_arg,
         default=0,
         help="seed of the start jitter (default 0); the i-th world of the list (from 0) flies with seed "
         "1009 * SEED + i, so a world flown alone draws other starts than in a longer list",
@@ -298,11 +286,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-steps",
-        type=_count,
+        type=count_arg,
         default=None,
         help="step limit per flight (default 120, scaled with --primitive-scale)",
     )
-    add_flight_flags(p, shield_default="model")
+    add_flight_flags(p, shield_default=shield_default)
     p.add_argument(
         "--flight-config",
         default=None,
@@ -319,6 +307,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="the D435-like depth noise model (sim_harness/noise.py) on the camera's frames; "
         "auto: on with --flight-config, else off",
     )
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "eval",
+        help="evaluate a checkpoint: the paper's table per world and trial, then success rates",
+        description="Evaluate a checkpoint greedily. Prints navigation distance, time, crash, total "
+        "reward and outcome per world and trial, then the success and collision-free rates.",
+    )
+    add_flights_flags(p, shield_default="model", trials_default=5, trials_note=", as in the paper")
+    p.add_argument(
+        "--layouts",
+        type=count_arg,
+        default=None,
+        metavar="N",
+        help="with --flight-config: fly N >= 1 random box layouts of each --world's room instead of "
+        "the world (sim_harness/lab_layouts.py: 0-2 boxes near the path, each with a sequence of "
+        "primitives that keeps the filter's margins to the goal); see --layout-seed",
+    )
+    p.add_argument(
+        "--layout-seed",
+        type=seed_arg,
+        default=4242,
+        help="seed of the layouts (default 4242; recipes/lab.yaml trains on 20261203)",
+    )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -332,9 +345,6 @@ def run(args: argparse.Namespace) -> int:
 
     if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
         print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
-        return 2
-    if args.world and args.procedural is not None:
-        print("quadnav-sim eval: give --world or --procedural N, not both", file=sys.stderr)
         return 2
     if args.layouts is not None and not (args.flight_config and args.world):
         print("quadnav-sim eval: --layouts N needs --flight-config and the room as --world", file=sys.stderr)

@@ -10,11 +10,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim_harness.cmd_eval import (
-    _count,
-    _seed,
     add_flight_flags,
     at_flight_scale,
+    count_arg,
     flight_setup,
+    seed_arg,
     shield_from_flags,
 )
 
@@ -62,13 +62,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="voxel size of the fill, in [0.005, 1] m (default 0.025; coarser for worlds over 6M cells)",
     )
     p.add_argument(
-        "--trials", type=_count, default=None, metavar="N",
+        "--trials", type=count_arg, default=None, metavar="N",
         help="with --flight-config: also search from the N jittered starts of quadnav-sim eval "
         "--flight-config with the same worlds in the same order, --trials N and --seed (from a "
         "start with no sequence, a vehicle that tracks perfectly cannot reach the goal keeping the "
         "margins from the true geometry)",
     )
-    p.add_argument("--seed", type=_seed, default=0, help="with --trials: the eval's --seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="with --trials: the eval's --seed (default 0)")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the reports as JSON")
     p.set_defaults(func=run, start_jitter_m=None)
 

@@ -38,9 +38,7 @@ from quadnav_onboard.frames import body_to_world
 from quadnav_onboard.primitives import PrimitiveSet
 from quadnav_onboard.shield import (
     ShieldConfig,
-    band_clearance,
     band_path,
-    fence_clearance,
     primitive_samples,
     within_known_space,
 )
@@ -262,13 +260,7 @@ def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArr
     samples = primitive_samples(prims, pos, vel, yaw, shield, pos_world_m=pos, vel_world_m_s=vel)
     m, a, k = samples.shape[:3]
     clear = clearance_m(world, samples.reshape(-1, 3)).reshape(m, a, k).min(axis=2)
-    ok = clear >= shield.clearance_m
-    if shield.fence_min_m is not None and shield.fence_max_m is not None:
-        ok &= fence_clearance(samples, shield.fence_min_m, shield.fence_max_m) >= shield.fence_margin_m
-    if shield.band_waypoints_m is not None and shield.band_half_width_m is not None:
-        ok &= band_clearance(samples, band_path(shield.band_waypoints_m), shield.band_half_width_m) >= (
-            shield.band_margin_m
-        )
+    ok = within_known_space(clear, samples, shield) >= shield.clearance_m
     if altitude_m is not None:
         z = samples[:, :, :-1, 2]  # where the vehicle is (the supervisor's stop), not the look-ahead
         ok &= (z.min(axis=2) >= altitude_m[0]) & (z.max(axis=2) <= altitude_m[1])
