@@ -142,7 +142,7 @@ def flights_from_flags(policy: Policy, args: argparse.Namespace) -> Flights:
     limits = None
     if flight_config:
         env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
-        layouts = getattr(args, "layouts", None)
+        layouts = args.layouts
         if layouts is not None:
             worlds = _layouts(env_cfg, worlds, limits, layouts, args.layout_seed)
     else:
@@ -307,16 +307,6 @@ def add_flights_flags(p: argparse.ArgumentParser, shield_default: str, trials_de
         help="the D435-like depth noise model (sim_harness/noise.py) on the camera's frames; "
         "auto: on with --flight-config, else off",
     )
-
-
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "eval",
-        help="evaluate a checkpoint: the paper's table per world and trial, then success rates",
-        description="Evaluate a checkpoint greedily. Prints navigation distance, time, crash, total "
-        "reward and outcome per world and trial, then the success and collision-free rates.",
-    )
-    add_flights_flags(p, shield_default="model", trials_default=5, trials_note=", as in the paper")
     p.add_argument(
         "--layouts",
         type=count_arg,
@@ -332,6 +322,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=4242,
         help="seed of the layouts (default 4242; recipes/lab.yaml trains on 20261203)",
     )
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "eval",
+        help="evaluate a checkpoint: the paper's table per world and trial, then success rates",
+        description="Evaluate a checkpoint greedily. Prints navigation distance, time, crash, total "
+        "reward and outcome per world and trial, then the success and collision-free rates.",
+    )
+    add_flights_flags(p, shield_default="model", trials_default=5, trials_note=", as in the paper")
     p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
