@@ -15,7 +15,7 @@ average, after a 3x3 median so that a lone speckle is not an obstacle.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, NamedTuple
 
 import cv2
 import numba
@@ -29,6 +29,7 @@ from quadnav_onboard.jit import CAN_CACHE, kernel_array
 __all__ = [
     "OUT_SIZE",
     "DepthFrameError",
+    "DepthInputs",
     "PreprocessConfig",
     "depth_inputs_mm",
     "nearest_depth_mm",
@@ -149,14 +150,17 @@ def _median9(d, i, j, h, w):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _cells(frames, min_mm, max_mm, scale, want_mean, want_near, mean_out, near_out):  # pragma: no cover
+def _cells(frames, min_mm, max_mm, scale, want_mean, want_near, mean_out, near_out, near_at):  # pragma: no cover  # noqa: E501
     """The 32x32 inputs of N depth frames (uint16 mm, (N, H, W), any H, W >= 32).
 
     Each pixel reads through the range rules: 0 (no return) and beyond ``max_mm`` read as
     ``max_mm``, nearer than ``min_mm`` as ``min_mm``. Cell (i, j) covers rows ``i*H//32`` to
     ``(i+1)*H//32`` and columns likewise. ``mean_out``: the cell's mean (the network input);
     ``near_out``: the least 3x3 median in the cell (the depth safety filter's nearest surface; the
-    median drops lone speckles). Both scaled by ``scale`` (1 / max range in mm) and clipped."""
+    median drops lone speckles). Both scaled by ``scale`` (1 / max range in mm) and clipped.
+    ``near_at``: where in the cell that least median lies, (row, column) of its pixel's centre
+    relative to the cell's centre, in input pixels (the first such pixel; 0, 0 where the cell saw
+    nothing)."""
     n_f, h, w = frames.shape
     lo = min_mm * scale
     clean = np.empty((h, w), dtype=np.uint16)
@@ -182,29 +186,58 @@ def _cells(frames, min_mm, max_mm, scale, want_mean, want_near, mean_out, near_o
                     mean_out[f, ci, cj] = min(max(m, lo), 1.0)
                 if want_near:
                     best = max_mm
+                    bi, bj = -1, -1
                     for i in range(r0, r1):
                         for j in range(c0, c1):
-                            best = min(best, _median9(clean, i, j, h, w))
+                            v = _median9(clean, i, j, h, w)
+                            if v < best:
+                                best, bi, bj = v, i, j
                     near_out[f, ci, cj] = best * scale
+                    if bi < 0:
+                        near_at[f, ci, cj, 0] = 0.0
+                        near_at[f, ci, cj, 1] = 0.0
+                    else:
+                        near_at[f, ci, cj, 0] = (bi + 0.5) * OUT_SIZE / h - (ci + 0.5)
+                        near_at[f, ci, cj, 1] = (bj + 0.5) * OUT_SIZE / w - (cj + 0.5)
+
+
+class DepthInputs(NamedTuple):
+    """What :func:`depth_inputs_mm` makes of N frames; a field not asked for is None."""
+
+    mean: NDArray[np.float32] | None
+    """The network inputs, float32 (N, 32, 32) in [0, 1]: each cell's mean depth / max range."""
+    near: NDArray[np.float32] | None
+    """The nearest-surface views, float32 (N, 32, 32) in [0, 1]: each cell's least 3x3 median."""
+    near_at: NDArray[np.float32] | None
+    """Where in its cell each nearest surface was seen, float32 (N, 32, 32, 2): (row, column) of
+    the pixel's centre relative to the cell's centre, in input pixels, within about ±0.5. The
+    depth safety filter places the surface on that pixel's ray, not the cell's centre ray (on a
+    slanted face the two differ by up to the depth across half a cell)."""
 
 
 def depth_inputs_mm(
     frames_mm: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig(), *, mean: bool = True,
     nearest: bool = False,
-) -> tuple[NDArray[np.float32] | None, NDArray[np.float32] | None]:
+) -> DepthInputs:
     """The one preprocessing, training's and flight's: N depth frames (uint16 mm, (N, H, W), 0 =
-    no return) -> (network inputs, nearest-surface views), each float32 (N, 32, 32) in [0, 1] or
-    None when not asked for. No validity check (:func:`validate_depth_mm` is flight's)."""
+    no return) -> the network inputs and, with ``nearest``, the nearest-surface views and where in
+    each cell they were seen (:class:`DepthInputs`). No validity check (:func:`validate_depth_mm`
+    is flight's)."""
     frames = kernel_array(frames_mm, np.uint16)
     if frames.ndim != 3 or frames.shape[1] < OUT_SIZE or frames.shape[2] < OUT_SIZE:
         raise DepthFrameError(f"depth frames must be (N, H, W) with H, W >= {OUT_SIZE}, got {frames.shape}")
     max_mm = int(np.floor(cfg.max_range_m * 1000.0))
     min_mm = min(int(np.ceil(cfg.min_range_m * 1000.0)), max_mm)
     n = frames.shape[0]
+    n_near = n if nearest else 0
     mean_out = np.empty((n if mean else 0, OUT_SIZE, OUT_SIZE), dtype=np.float32)
-    near_out = np.empty((n if nearest else 0, OUT_SIZE, OUT_SIZE), dtype=np.float32)
-    _cells(frames, min_mm, max_mm, 1.0 / (cfg.max_range_m * 1000.0), mean, nearest, mean_out, near_out)
-    return (mean_out if mean else None), (near_out if nearest else None)
+    near_out = np.empty((n_near, OUT_SIZE, OUT_SIZE), dtype=np.float32)
+    near_at = np.empty((n_near, OUT_SIZE, OUT_SIZE, 2), dtype=np.float32)
+    _cells(frames, min_mm, max_mm, 1.0 / (cfg.max_range_m * 1000.0), mean, nearest, mean_out, near_out,
+           near_at)
+    if not nearest:
+        return DepthInputs(mean_out if mean else None, None, None)
+    return DepthInputs(mean_out if mean else None, near_out, near_at)
 
 
 def preprocess_depth_mm(
@@ -216,7 +249,7 @@ def preprocess_depth_mm(
     ``min_valid_fraction`` of the pixels hold a valid reading.
     """
     _checked(frame, cfg)
-    return depth_inputs_mm(np.asarray(frame)[None], cfg)[0][0]  # type: ignore[index]
+    return depth_inputs_mm(np.asarray(frame)[None], cfg).mean[0]  # type: ignore[index]
 
 
 def nearest_depth_mm(
@@ -230,14 +263,15 @@ def nearest_depth_mm(
     :func:`preprocess_depth_mm` does.
     """
     _checked(frame, cfg)
-    return depth_inputs_mm(np.asarray(frame)[None], cfg, mean=False, nearest=True)[1][0]  # type: ignore[index]
+    return depth_inputs_mm(np.asarray(frame)[None], cfg, mean=False, nearest=True).near[0]  # type: ignore[index]
 
 
 def preprocess_depth_pair(
     frame: NDArray[np.uint16], cfg: PreprocessConfig = PreprocessConfig()
-) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """Both views of one frame, checked once: (:func:`preprocess_depth_mm`,
-    :func:`nearest_depth_mm`)."""
+    :func:`nearest_depth_mm`, where in each cell the nearest surface was seen (32, 32, 2), as
+    :attr:`DepthInputs.near_at`)."""
     _checked(frame, cfg)
-    mean, near = depth_inputs_mm(np.asarray(frame)[None], cfg, nearest=True)
-    return mean[0], near[0]  # type: ignore[index]
+    out = depth_inputs_mm(np.asarray(frame)[None], cfg, nearest=True)
+    return out.mean[0], out.near[0], out.near_at[0]  # type: ignore[index]

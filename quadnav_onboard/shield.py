@@ -2,11 +2,13 @@
 
 The paper's agent crashes when it moves sideways or vertically into obstacles that have left the
 camera's field of view: it has no memory of what it saw. The shield gives the planner that memory
-and a veto. Each decision's 32x32 depth input is back-projected into 3-D points (pixel centres
-of the D435 pinhole model at the input's depth) and kept, in the world frame, for the last
-``memory_steps`` decisions. That input is, by default, the *nearest* surface in each cell of the
-frame (``depth_pooling``), not the network's area-averaged input, and each point has a "shadow"
-point ``shadow_m`` behind it along its ray (the unseen back of what was seen). Before the DQN's
+and a veto. Each decision's 32x32 depth input is back-projected into 3-D points (the D435
+pinhole model at the input's depth) and kept, in the world frame, for the last ``memory_steps``
+decisions. That input is, by default, the *nearest* surface in each cell of the frame
+(``depth_pooling``), not the network's area-averaged input, placed on the ray of the pixel that
+saw it (on the cell's centre ray a slanted face would come out nearer than it is), and each point
+has a "shadow" point ``shadow_m`` behind it along its ray (the unseen back of what was seen),
+forgotten once a view from elsewhere sees through it (``carve_shadows``). Before the DQN's
 arg-max, every primitive is sampled along its commanded Bézier curve (plus a short look-ahead at
 its end velocity, the overshoot of stopping after it) and its clearance is the least distance
 from those samples to any remembered point. A primitive is *allowed* when its clearance is at
@@ -14,11 +16,12 @@ least ``clearance_m`` (the quad's radius plus a margin for tracking error). When
 allowed, the ones with the largest clearance are: the shield degrades to "least bad", never to
 "no answer".
 
-Everything here is a pure function of its inputs (numpy, plus one numba kernel for the distance
-search), shared by the simulator (batched over N vehicles) and the flight daemon (N = 1), so what
-is trained is what flies. Frames: world x forward, y left, z up (m); the heading frame is the
-world rotated by the heading yaw; depth inputs are float32 (32, 32) in [0, 1] (depth / max range,
-see :mod:`quadnav_onboard.preprocess`), row 0 up, column 0 left.
+Everything here is a pure function of its inputs (numpy, plus numba kernels for the distance
+search, the tracking prediction and the views' free space), shared by the simulator (batched
+over N vehicles) and the flight daemon (N = 1), so what is trained is what flies. Frames: world
+x forward, y left, z up (m); the heading frame is the world rotated by the heading yaw; depth
+inputs are float32 (32, 32) in [0, 1] (depth / max range, see :mod:`quadnav_onboard.preprocess`),
+row 0 up, column 0 left.
 """
 
 from __future__ import annotations
@@ -133,6 +136,12 @@ class ShieldConfig:
     further along its ray, so the unseen back of a pipe or the far side of a trunk counts as solid
     when the vehicle moves round or over it. 0 = the seen surfaces only.
     Range: [0, 5], below ``search_radius_m``."""
+    carve_shadows: bool = True
+    """Forget a shadow point once another remembered view saw through it (it lies in that view's
+    field of view, ``seen_margin_m`` or more in front of the nearest surface measured there): the
+    space behind a surface is unknown only until a view from elsewhere looks into it. Without this,
+    the shadows of a face seen at a slant stick out past the obstacle's far edge, into space
+    the vehicle has since seen to be free, and close the way round it."""
     known_floor: bool = True
     """Also keep ``clearance_m`` from the floor plane when its height is known (the sim: each
     world's floor; the daemon: world z = 0, which is the ground the vehicle stood on at take-off or
@@ -288,14 +297,34 @@ def _pixel_rays(cfg: ShieldConfig) -> NDArray[np.float64]:
     return rays.reshape(-1, 3)
 
 
-def depth_points_heading(depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig()) -> NDArray[np.float32]:
+def depth_points_heading(
+    depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig(), at: ArrayLike | None = None
+) -> NDArray[np.float32]:
     """Back-project inputs (..., 32, 32) to heading-frame points (..., 1024, 3), metres, relative
-    to the camera; pixels that saw nothing (value >= 0.999) are NaN."""
+    to the camera; pixels that saw nothing (value >= 0.999) are NaN.
+
+    Each point lies on the ray through its cell's centre, or, given ``at`` (..., 32, 32, 2), on the
+    ray through the place in the cell where its depth was seen (row, column offsets from the
+    centre in input pixels: :attr:`quadnav_onboard.preprocess.DepthInputs.near_at`). A cell's
+    nearest depth put on the centre ray of a slanted face is nearer than the face there."""
     d = np.asarray(depth_input, dtype=np.float32)
     flat = d.reshape(*d.shape[:-2], INPUT_SIZE * INPUT_SIZE)
     z = (flat * np.float32(cfg.max_range_m))[..., None]
-    pts = z * _pixel_rays(cfg).astype(np.float32)
+    rays = _pixel_rays(cfg).astype(np.float32)
+    if at is not None:
+        off = np.asarray(at, dtype=np.float32).reshape(*d.shape[:-2], INPUT_SIZE * INPUT_SIZE, 2)
+        step = _pixel_step(cfg)  # slope per input pixel, (row -> z, column -> y)
+        rays = np.broadcast_to(rays, (*off.shape[:-1], 3)).copy()
+        rays[..., 1] -= off[..., 1] * step[1]
+        rays[..., 2] -= off[..., 0] * step[0]
+    pts = z * rays
     return np.where((flat >= np.float32(0.999))[..., None], np.float32(np.nan), pts).astype(np.float32)
+
+
+def _pixel_step(cfg: ShieldConfig) -> NDArray[np.float32]:
+    """How much a ray's slope falls per input pixel down (z/x) and to the right (y/x)."""
+    return np.array([2.0 * math.tan(math.radians(cfg.vfov_deg) / 2) / INPUT_SIZE,
+                     2.0 * math.tan(math.radians(cfg.hfov_deg) / 2) / INPUT_SIZE], dtype=np.float32)
 
 
 def points_per_view(cfg: ShieldConfig) -> int:
@@ -303,11 +332,13 @@ def points_per_view(cfg: ShieldConfig) -> int:
     return INPUT_SIZE * INPUT_SIZE * (2 if cfg.shadow_m > 0 else 1)
 
 
-def view_points_heading(depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig()) -> NDArray[np.float32]:
+def view_points_heading(
+    depth_input: ArrayLike, cfg: ShieldConfig = ShieldConfig(), at: ArrayLike | None = None
+) -> NDArray[np.float32]:
     """What a view leaves in the memory, heading frame relative to the camera: the surface points
-    of :func:`depth_points_heading`, then (``shadow_m`` > 0) each one moved ``shadow_m`` further
-    along its ray; shape (..., points_per_view, 3)."""
-    pts = depth_points_heading(depth_input, cfg)
+    of :func:`depth_points_heading` (placed by ``at``, if given), then (``shadow_m`` > 0) each
+    one moved ``shadow_m`` further along its ray; shape (..., points_per_view, 3)."""
+    pts = depth_points_heading(depth_input, cfg, at)
     if cfg.shadow_m <= 0:
         return pts
     rng = np.linalg.norm(pts, axis=-1, keepdims=True)
@@ -344,19 +375,24 @@ class PointMemory:
         self.points[sel] = np.nan
         self.pose[sel] = np.nan
 
-    def add(self, ids: ArrayLike, depth_input: ArrayLike, pos_world_m: ArrayLike, yaw_rad: ArrayLike) -> None:
+    def add(self, ids: ArrayLike, depth_input: ArrayLike, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
+            at: ArrayLike | None = None) -> None:
         """Remember inputs (M, 32, 32) seen by vehicles ``ids`` (M,) at body position
         ``pos_world_m`` (M, 3) and heading ``yaw_rad`` (M,); the camera is ``camera_offset_m`` from
-        there. The oldest view is dropped, unless the camera is within ``min_travel_m`` of a
-        remembered view: then the nearest such view is dropped (a vehicle going back and forth
-        between two places keeps both views and what it saw before them)."""
+        there. ``at`` (M, 32, 32, 2): where in each cell its depth was seen
+        (:func:`depth_points_heading`; None: on the cell's centre ray). The oldest view is
+        dropped, unless the camera is within ``min_travel_m`` of a remembered view: then the
+        nearest such view is dropped (a vehicle going back and forth between two places keeps
+        both views and what it saw before them). With ``carve_shadows``, the shadows that the new
+        view saw through, and the new view's shadows that a remembered view saw through, are
+        forgotten."""
         ids = np.asarray(ids)
         pos = np.asarray(pos_world_m, dtype=np.float64)
         yaw = np.asarray(yaw_rad, dtype=np.float64)
         depth = np.asarray(depth_input, dtype=np.float32)
         offset = np.broadcast_to(np.asarray(self.cfg.camera_offset_m, dtype=np.float64), pos.shape)
         pos = pos + body_to_world(offset, yaw)  # the camera's position
-        pts_w = body_to_world(view_points_heading(depth, self.cfg).astype(np.float64), yaw[:, None])
+        pts_w = body_to_world(view_points_heading(depth, self.cfg, at).astype(np.float64), yaw[:, None])
         pts_w += pos[:, None, :]
         k = points_per_view(self.cfg)
         mem, dep, pose = self.points[ids], self.depth_m[ids], self.pose[ids]
@@ -373,7 +409,73 @@ class PointMemory:
         dep[:, -1] = depth * np.float32(self.cfg.max_range_m)
         pose[:, -1, :3] = pos
         pose[:, -1, 3] = yaw
+        if self.cfg.shadow_m > 0 and self.cfg.carve_shadows:
+            mem, dep = kernel_array(mem, np.float32), kernel_array(dep, np.float32)
+            pose = kernel_array(pose, np.float64)
+            _carve_shadows(mem, dep, pose, k, INPUT_SIZE * INPUT_SIZE,
+                           math.tan(math.radians(self.cfg.hfov_deg) / 2),
+                           math.tan(math.radians(self.cfg.vfov_deg) / 2), self.cfg.seen_margin_m)
         self.points[ids], self.depth_m[ids], self.pose[ids] = mem, dep, pose
+
+
+@numba.njit(cache=CAN_CACHE, nogil=True)
+def _seen_free_by(
+    depth_m: NDArray, pose: NDArray, i: int, f: int, x: float, y: float, z: float,
+    tan_h: float, tan_v: float, margin: float,
+) -> bool:  # pragma: no cover
+    """Whether vehicle ``i``'s view ``f`` saw the world point (x, y, z) to be free: in its field
+    of view and ``margin`` or more in front of the nearest surface it measured in that cell."""
+    res = depth_m.shape[2]
+    c, sn = math.cos(pose[i, f, 3]), math.sin(pose[i, f, 3])
+    wx, wy, wz = x - pose[i, f, 0], y - pose[i, f, 1], z - pose[i, f, 2]
+    fx = c * wx + sn * wy
+    if fx <= 0.0:
+        return False
+    ty = (-sn * wx + c * wy) / fx
+    tz = wz / fx
+    if abs(ty) >= tan_h or abs(tz) >= tan_v:
+        return False
+    col = min(res - 1, int((1.0 - ty / tan_h) * 0.5 * res))
+    row = min(res - 1, int((1.0 - tz / tan_v) * 0.5 * res))
+    return fx + margin <= depth_m[i, f, row, col]
+
+
+@numba.njit(cache=CAN_CACHE, nogil=True)
+def _see_through(
+    points: NDArray, depth_m: NDArray, pose: NDArray, i: int, lo: int, hi: int, f: int,
+    tan_h: float, tan_v: float, margin: float,
+) -> None:  # pragma: no cover
+    """Vehicle ``i``'s points ``lo`` .. ``hi`` that view ``f`` saw through become NaN."""
+    for q in range(lo, hi):
+        x = points[i, q, 0]
+        if x == x and _seen_free_by(depth_m, pose, i, f, x, points[i, q, 1], points[i, q, 2],
+                                    tan_h, tan_v, margin):
+            points[i, q, 0] = np.nan
+            points[i, q, 1] = np.nan
+            points[i, q, 2] = np.nan
+
+
+@numba.njit(cache=CAN_CACHE, nogil=True)
+def _carve_shadows(
+    points: NDArray, depth_m: NDArray, pose: NDArray, per_view: int, n_surface: int,
+    tan_h: float, tan_v: float, margin: float,
+) -> None:  # pragma: no cover
+    """After a view was added as the newest (last) slot: the older views' shadow points that it saw
+    through, and its own shadow points that an older view saw through, become NaN. Each pair of
+    views is compared once, when the later one arrives. A slot holds ``per_view`` points, the
+    first ``n_surface`` of them surfaces, the rest their shadows."""
+    n, k = pose.shape[0], pose.shape[1]
+    new = k - 1
+    for i in range(n):
+        if pose[i, new, 0] != pose[i, new, 0]:
+            continue
+        for f in range(new):
+            if pose[i, f, 0] != pose[i, f, 0]:
+                continue  # empty slot
+            _see_through(points, depth_m, pose, i, f * per_view + n_surface, (f + 1) * per_view, new,
+                         tan_h, tan_v, margin)
+            _see_through(points, depth_m, pose, i, new * per_view + n_surface, (new + 1) * per_view, f,
+                         tan_h, tan_v, margin)
 
 
 def primitive_samples(
@@ -529,7 +631,7 @@ def _seen_free(
     margin: float, near: float, level_tol: float, out: NDArray,
 ) -> None:  # pragma: no cover
     n, a, s = samples.shape[0], samples.shape[1], samples.shape[2]
-    k, res = depth_m.shape[1], depth_m.shape[2]
+    k = depth_m.shape[1]
     for i in range(n):
         for j in range(a):
             ok = True
@@ -544,18 +646,7 @@ def _seen_free(
                 for f in range(k):
                     if pose[i, f, 0] != pose[i, f, 0]:
                         continue  # empty slot
-                    c, sn = math.cos(pose[i, f, 3]), math.sin(pose[i, f, 3])
-                    wx, wy, wz = x - pose[i, f, 0], y - pose[i, f, 1], z - pose[i, f, 2]
-                    fx = c * wx + sn * wy
-                    if fx <= 0.0:
-                        continue
-                    ty = (-sn * wx + c * wy) / fx
-                    tz = wz / fx
-                    if abs(ty) >= tan_h or abs(tz) >= tan_v:
-                        continue
-                    col = min(res - 1, int((1.0 - ty / tan_h) * 0.5 * res))
-                    row = min(res - 1, int((1.0 - tz / tan_v) * 0.5 * res))
-                    if fx + margin <= depth_m[i, f, row, col]:
+                    if _seen_free_by(depth_m, pose, i, f, x, y, z, tan_h, tan_v, margin):
                         seen = True
                         break
                 if not seen:

@@ -34,7 +34,7 @@ import pydantic
 from numpy.typing import NDArray
 
 from quadnav_onboard.config import PrimitiveConfig
-from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig
+from quadnav_onboard.preprocess import OUT_SIZE, DepthInputs, PreprocessConfig
 from quadnav_onboard.reward import RewardParams
 from quadnav_onboard.shield import PointMemory, ShieldConfig, shield_at_scale, shield_verdict
 from quadnav_onboard.step import (
@@ -189,24 +189,22 @@ class VecQuadNavEnv:
         ids = np.flatnonzero(mask)
         return [(self.worlds[w], ids[self.world_idx[ids] == w]) for w in np.unique(self.world_idx[ids])]
 
-    def _observe(
-        self, ids: NDArray[np.int64], world: World, yaw: NDArray
-    ) -> tuple[NDArray, NDArray]:
-        """Network inputs and the shield's depth view (the nearest surface per cell with
-        ``depth_pooling: min``, else the network inputs themselves) of the quads ``ids``."""
+    def _observe(self, ids: NDArray[np.int64], world: World, yaw: NDArray) -> DepthInputs:
+        """The views of the quads ``ids``: the network inputs and, with the shield's
+        ``depth_pooling: min``, its nearest-surface views and where in each cell they were seen."""
         shield = self.config.shield
         nearest = self.memory is not None and shield.depth_pooling == "min"
-        depth, near = render_inputs(world, self.pos_m[ids], yaw, self.config.preprocess, nearest=nearest)
-        return depth, depth if near is None else near
+        return render_inputs(world, self.pos_m[ids], yaw, self.config.preprocess, nearest=nearest)
 
-    def _update_shield(self, ids: NDArray[np.int64], depth: NDArray, yaw: NDArray, new: bool) -> None:
-        """Remember the new views of ``ids`` (the shield's depth view of :meth:`_observe`) and
-        re-check every primitive for the next decision."""
+    def _update_shield(self, ids: NDArray[np.int64], view: DepthInputs, yaw: NDArray, new: bool) -> None:
+        """Remember the new views of ``ids`` (:meth:`_observe`'s: the nearest surfaces, placed where
+        they were seen, else the network inputs) and re-check every primitive for the next decision."""
         if self.memory is None:
             return
         if new:
             self.memory.clear(ids)
-        self.memory.add(ids, depth, self.pos_m[ids], yaw)
+        depth = view.mean if view.near is None else view.near
+        self.memory.add(ids, depth, self.pos_m[ids], yaw, view.near_at)
         mem = self.memory
         yaw = np.asarray(yaw)
         if self._world_shields is None:
@@ -289,8 +287,8 @@ class VecQuadNavEnv:
         for world, sel in self._groups(mask):
             first = step_inputs(world.path, self.steps[sel], self.prims.duration_s, self.pos_m[sel])
             self._keep_inputs(sel, first)
-            depth, view = self._observe(sel, world, first.yaw_rad)
-            self.depth[sel] = depth[:, None]
+            view = self._observe(sel, world, first.yaw_rad)
+            self.depth[sel] = view.mean[:, None]
             self.rel[sel] = first.rel_pos_body_m[:, None]
             self._update_shield(sel, view, first.yaw_rad, new=True)
         return self.depth, self.rel
@@ -356,8 +354,8 @@ class VecQuadNavEnv:
             rew[ids] = rec.reward
             progress[ids] = rec.progress_m
             deviation[ids] = rec.deviation_m
-            depth, view = self._observe(ids, world, after.yaw_rad)
-            self.depth[ids] = push_history(self.depth[ids], depth)
+            view = self._observe(ids, world, after.yaw_rad)
+            self.depth[ids] = push_history(self.depth[ids], view.mean)
             self.rel[ids] = push_history(self.rel[ids], after.rel_pos_body_m)
             self._update_shield(ids, view, after.yaw_rad, new=False)
         self._set_last_step(records)

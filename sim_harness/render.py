@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from quadnav_onboard.camera import D435_HFOV_DEG, D435_MAX_RANGE_M, D435_MIN_RANGE_M, D435_VFOV_DEG
 from quadnav_onboard.frames import pixel_slopes, quat_to_rotmat, rotmat_yaw
 from quadnav_onboard.jit import CAN_CACHE
-from quadnav_onboard.preprocess import OUT_SIZE, PreprocessConfig, depth_inputs_mm
+from quadnav_onboard.preprocess import OUT_SIZE, DepthInputs, PreprocessConfig, depth_inputs_mm
 from sim_harness.noise import DepthNoise, apply_depth_noise
 from sim_harness.world import Geometry, World
 
@@ -384,24 +384,26 @@ def render_network_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLi
     ``preprocess_depth_mm(render_frame_mm(...))`` of a full-resolution frame closely
     (tests/test_render_paths.py).
     """
-    return render_inputs(world, pos_world_m, yaw_rad, preprocess, camera=camera, supersample=supersample)[0]
+    mean = render_inputs(world, pos_world_m, yaw_rad, preprocess, camera=camera, supersample=supersample).mean
+    assert mean is not None
+    return mean
 
 
 def render_inputs(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike,
                   preprocess: PreprocessConfig = PreprocessConfig(), *, camera: CameraModel = D435_424x240,
                   supersample: int = 2, nearest: bool = False
-                  ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+                  ) -> DepthInputs:
     """Network inputs (as :func:`render_network_inputs`) and, with ``nearest``, the depth safety
-    filter's view of the same frame.
+    filter's view of the same frame and where in each cell it saw its surface (:class:`DepthInputs`).
 
     The sim camera renders a (32 s) x (32 s) uint16 depth frame with ``camera``'s field of view and
     range rules, and the frame goes through the flight's own preprocessing,
     :func:`quadnav_onboard.preprocess.depth_inputs_mm` (range rules, cell means, the 3x3 median
     and the nearest surface per cell): what training sees is computed by the code that flies."""
     frames = render_input_frames_mm(world, pos_world_m, yaw_rad, camera=camera, supersample=supersample)
-    mean, near = depth_inputs_mm(frames, preprocess, nearest=nearest)
-    assert mean is not None
-    return mean, near
+    out = depth_inputs_mm(frames, preprocess, nearest=nearest)
+    assert out.mean is not None
+    return out
 
 
 def render_input_frames_mm(world: World, pos_world_m: ArrayLike, yaw_rad: ArrayLike, *,

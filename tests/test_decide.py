@@ -138,8 +138,9 @@ def test_the_shield_sees_a_thin_pole_that_the_network_input_blurs(policy: Policy
         verdicts[pooling] = d.decide(prepared, np.zeros(3), "full", _still())
     decider = Decider(policy, PreprocessConfig(), shield=ShieldConfig(enabled=True))
     near = decider.prepare(frame, decider.snapshot())
-    assert near.nearest_view is not None and near.shield_view is near.nearest_view
-    assert near.shield_view.min() == pytest.approx(0.1, abs=1e-6)
+    assert near.nearest_view is not None and near.shield_view[0] is near.nearest_view
+    assert near.nearest_at is not None and near.shield_view[1] is near.nearest_at
+    assert near.nearest_view.min() == pytest.approx(0.1, abs=1e-6)
     assert near.depth_input.min() > 0.25  # blurred into the background
     assert not verdicts["min"].allowed[fwd] and verdicts["mean"].allowed[fwd]
     assert verdicts["min"].clearance_m[fwd] < 0.5 < verdicts["mean"].clearance_m[fwd]

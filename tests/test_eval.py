@@ -257,7 +257,7 @@ def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp
         "from sim_harness.world import load_world, paper_world_path\n"
         "w = load_world(paper_world_path(6))\n"
         "pos, yaw = np.array([[8.5, 0, 3.4]]), np.array([0.0])\n"
-        "look = lambda: E.render_inputs(w, pos, yaw, PreprocessConfig())[0]\n"
+        "look = lambda: E.render_inputs(w, pos, yaw, PreprocessConfig()).mean\n"
         "before = look()\n"
         f"sys.path.insert(0, {str(script.parent)!r})\n"
         "import with_camera_fov as m\n"

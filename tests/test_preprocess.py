@@ -139,6 +139,22 @@ def test_nearest_view_keeps_a_thin_pole_and_ignores_a_lone_speckle():
     pair = preprocess_depth_pair(frame)
     np.testing.assert_array_equal(pair[0], preprocess_depth_mm(frame))
     np.testing.assert_array_equal(pair[1], near)
+    assert pair[2].shape == (32, 32, 2) and np.all(np.abs(pair[2]) < 0.55)  # whole-pixel cells: 0.52
+
+
+def test_the_nearest_view_says_where_in_its_cell_it_saw_the_surface():
+    """A 4x4-pixel patch at 1 m in one cell of a 240 x 424 frame (cells 7-8 x 13-14 pixels): the
+    first pixel whose 3x3 median is the patch's depth is (38, 141); ``near_at`` is that pixel's
+    centre, in input pixels, from the cell's centre. Cells that saw nothing say (0, 0)."""
+    frame = np.full((240, 424), 6000, np.uint16)
+    frame[38:42, 140:144] = 1000
+    frame[200:, :] = 0
+    _, near, at = preprocess_depth_pair(frame)
+    ci, cj = 38 * 32 // 240, 141 * 32 // 424
+    assert (ci, cj) == (5, 10) and near[ci, cj] == pytest.approx(0.1)
+    np.testing.assert_allclose(at[ci, cj], [38.5 * 32 / 240 - 5.5, 141.5 * 32 / 424 - 10.5], atol=1e-6)
+    np.testing.assert_array_equal(at[31, 0], [0.0, 0.0])  # no return there
+    assert np.all(np.abs(at) < 0.55)
 
 
 def test_nearest_view_refuses_what_the_network_input_refuses():

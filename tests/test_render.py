@@ -193,8 +193,8 @@ def test_the_shields_view_keeps_a_thin_pole_the_network_input_blends() -> None:
     ~4.95 m, and is nowhere farther than the input."""
     w = _world(Box((8.5, 0.0, 3.0), (1.0, 12.0, 6.0)), Cylinder((5.0, 0.0, 3.0), 0.09, 6.0),
                floor=0.0, ceiling=6.0)
-    mean, near = render_inputs(w, [(0.0, 0.0, 2.0)], [0.0], nearest=True)
-    assert render_inputs(w, [(0.0, 0.0, 2.0)], [0.0])[1] is None
+    mean, near, _ = render_inputs(w, [(0.0, 0.0, 2.0)], [0.0], nearest=True)
+    assert render_inputs(w, [(0.0, 0.0, 2.0)], [0.0]).near is None
     np.testing.assert_array_equal(mean, render_network_inputs(w, [(0.0, 0.0, 2.0)], [0.0]))
     assert near.shape == mean.shape == (1, 32, 32) and near.dtype == np.float32
     assert np.all(near <= mean + 1e-7)

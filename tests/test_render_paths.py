@@ -69,7 +69,7 @@ def test_the_flight_filters_nearest_view_is_never_farther_than_the_sims(world_id
     a few cells the sim is the nearer one (measured: 0.3-0.5 % of cells by more than 0.1 m, at most
     0.71 m). Mean |diff| measured 0.010-0.011."""
     w, pos, yaw = _world_and_poses(world_id)
-    _, sim = render_inputs(w, pos, yaw, camera=camera, nearest=True)
+    sim = render_inputs(w, pos, yaw, camera=camera, nearest=True).near
     flight = np.stack([nearest_depth_mm(render_frame_mm(w, p, quat_from_yaw(y), camera))
                        for p, y in zip(pos, yaw, strict=True)])
     assert sim is not None and sim.shape == flight.shape

@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from quadnav_onboard.frames import pixel_slopes
+from quadnav_onboard.preprocess import preprocess_depth_pair
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
 from quadnav_onboard.shield import (
     PointMemory,
@@ -48,6 +50,49 @@ def test_pixels_that_saw_nothing_give_no_points():
     d[:, :16] = 1.0  # left half: nothing within range
     pts = depth_points_heading(d).reshape(32, 32, 3)
     assert np.isnan(pts[:, :16]).all() and np.isfinite(pts[:, 16:]).all()
+
+
+def _slanted_wall_frame_mm(near_x_m: float, slope: float, cfg: ShieldConfig = ON) -> np.ndarray:
+    """A D435 frame (240 x 424, mm) of the plane x = near_x_m + slope * y (heading frame, camera at
+    the origin): seen at a grazing angle when ``slope`` is large."""
+    ty = pixel_slopes(424, 240, cfg.hfov_deg, cfg.vfov_deg)[0]
+    x = near_x_m / (1.0 - slope * ty)  # the ray (1, ty, tz) meets the plane at this z-depth
+    x = np.where(x > 0, x, np.inf)
+    return np.broadcast_to(np.clip(np.round(x * 1000.0), 0, 65535), (240, 424)).astype(np.uint16)
+
+
+def test_a_slanted_faces_points_lie_on_it_when_placed_where_they_were_seen():
+    """A wall 1 m ahead slanting away to the left (~76 deg from facing the camera): each cell's
+    nearest depth placed on the ray of the pixel that saw it lies on the wall (to the mm
+    quantisation); on the cell's centre ray it lies in front of the wall, nearer than it is."""
+    slope = 4.0
+    frame = _slanted_wall_frame_mm(1.0, slope)
+    _, near, near_at = preprocess_depth_pair(frame)
+    seen = near < 0.999
+    assert seen.sum() > 200
+
+    def off_wall_m(pts: np.ndarray) -> np.ndarray:  # signed: < 0 in front of the wall
+        p = pts.reshape(32, 32, 3)[seen]
+        return (p[:, 0] - 1.0 - slope * p[:, 1]) / math.hypot(1.0, slope)
+
+    placed = off_wall_m(depth_points_heading(near, ON, near_at))
+    centred = off_wall_m(depth_points_heading(near, ON))
+    assert np.abs(placed).max() < 0.005
+    assert centred.max() < 0.005 and centred.min() < -0.02  # nearer than the wall, by cm
+
+
+def test_the_memory_places_points_where_given_and_on_centre_rays_without():
+    depth = wall_input(2.0)[None]
+    at = np.zeros((1, 32, 32, 2), np.float32)
+    at[..., 1] = 0.5  # every surface seen at its cell's right edge
+    centred, placed = PointMemory(1, ON), PointMemory(1, ON)
+    centred.add([0], depth, np.zeros((1, 3)), np.zeros(1))
+    placed.add([0], depth, np.zeros((1, 3)), np.zeros(1), at)
+    view = slice(-points_per_view(ON), -points_per_view(ON) + 1024)  # the newest view's surface points
+    shift = centred.points[0, view, 1] - placed.points[0, view, 1]  # right is -y
+    step = 2.0 * 2.0 * math.tan(math.radians(ON.hfov_deg) / 2) / 32
+    np.testing.assert_allclose(shift, 0.5 * step, rtol=1e-4)
+    np.testing.assert_allclose(placed.points[0, view, 0], 2.0, rtol=1e-6)
 
 
 def test_a_wall_ahead_vetoes_forward_primitives_and_keeps_hovering():
@@ -114,6 +159,40 @@ def test_each_seen_point_casts_a_shadow_point_further_along_its_ray():
     )
     assert points_per_view(ShieldConfig(shadow_m=0.0)) == 1024
     np.testing.assert_array_equal(view_points_heading(depth, ShieldConfig(shadow_m=0.0)), surface)
+
+
+def _one_cell_view(distance_m: float, cfg: ShieldConfig = ON) -> np.ndarray:
+    """An input that saw one surface, in the centre cell, ``distance_m`` ahead; nothing elsewhere."""
+    depth = np.ones((32, 32), np.float32)
+    depth[16, 16] = distance_m / cfg.max_range_m
+    return depth
+
+
+@pytest.mark.parametrize(("second_view_m", "carve", "shadow_left"), [
+    (None, True, True),  # nothing looked at the shadow again
+    (10.0, True, False),  # a view from the side saw through it: gone
+    (10.0, False, True),  # ... unless carving is off
+    (2.1, True, True),  # the side view's surface is within the margin behind it: not seen through
+])
+def test_a_shadow_is_forgotten_once_a_view_from_elsewhere_sees_through_it(
+    second_view_m: float | None, carve: bool, shadow_left: bool
+) -> None:
+    """From the origin, one surface 2 m ahead: its point and its shadow 0.3 m behind. A second
+    view from 2.3 m to the right, looking left (+y) straight at the shadow, that measured nothing
+    there (10 m) or a surface 2.1 m away (under the shadow's 2.0 m + ``seen_margin_m``)."""
+    cfg = ShieldConfig(enabled=True, carve_shadows=carve)
+    mem = PointMemory(1, cfg)
+    mem.add([0], _one_cell_view(2.0, cfg)[None], np.zeros((1, 3)), np.zeros(1))
+    before = mem.points[0][np.isfinite(mem.points[0, :, 0])]
+    assert before.shape == (2, 3) and before[1, 0] > before[0, 0] + 0.25  # the surface, its shadow
+    if second_view_m is not None:
+        shadow = before[1]
+        side = np.array([[shadow[0], shadow[1] - 2.0, shadow[2]]])
+        seen = np.full((1, 32, 32), min(second_view_m / cfg.max_range_m, 1.0), np.float32)
+        mem.add([0], seen, side, np.array([math.pi / 2]))
+    after = mem.points[0][np.isfinite(mem.points[0, :, 0])]
+    assert any(np.allclose(p, before[0]) for p in after)  # a seen surface is never forgotten
+    assert any(np.allclose(p, before[1]) for p in after) == shadow_left
 
 
 def test_the_shadow_makes_the_unseen_back_of_a_ledge_solid():

@@ -74,11 +74,17 @@ class PreparedFrame:
     nearest_view: NDArray[np.float32] | None = None
     """The nearest surface per cell of this frame (32, 32), when the shield uses it
     (``depth_pooling: min``, :func:`quadnav_onboard.preprocess.nearest_depth_mm`)."""
+    nearest_at: NDArray[np.float32] | None = None
+    """Where in each cell that surface was seen (32, 32, 2), with ``nearest_view``
+    (:attr:`quadnav_onboard.preprocess.DepthInputs.near_at`)."""
 
     @property
-    def shield_view(self) -> NDArray[np.float32]:
-        """What the shield remembers of this frame: the nearest view, else the network's input."""
-        return self.depth_input if self.nearest_view is None else self.nearest_view
+    def shield_view(self) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+        """What the shield remembers of this frame: the nearest view and where in each cell it was
+        seen, else the network's input (on the cells' centre rays)."""
+        if self.nearest_view is None:
+            return self.depth_input, None
+        return self.nearest_view, self.nearest_at
 
 
 @dataclass(frozen=True)
@@ -162,15 +168,16 @@ class Decider:
 
         Raises :class:`quadnav_onboard.preprocess.DepthFrameError` for an unusable frame.
         """
-        nearest = None
+        nearest = nearest_at = None
         if self.shield.enabled and self.shield.depth_pooling == "min":
-            depth_in, nearest = preprocess_depth_pair(frame.depth_mm, self.preprocess)
+            depth_in, nearest, nearest_at = preprocess_depth_pair(frame.depth_mm, self.preprocess)
         else:
             depth_in = preprocess_depth_mm(frame.depth_mm, self.preprocess)
         features = self.policy.depth_features(history.depth_with(depth_in))
-        prepared = PreparedFrame(frame, depth_in, features, history.version, nearest_view=nearest)
+        prepared = PreparedFrame(frame, depth_in, features, history.version, nearest_view=nearest,
+                                 nearest_at=nearest_at)
         if memory is not None and motion is not None and self.shield.enabled:
-            allowed, clearance, after = self._verdict(memory, prepared.shield_view, motion)
+            allowed, clearance, after = self._verdict(memory, *prepared.shield_view, motion)
             prepared = replace(prepared, allowed=allowed, clearance_m=clearance, memory=after)
         self.prepared = prepared
         return prepared
@@ -200,18 +207,20 @@ class Decider:
             elif motion is None:
                 raise ValueError("the shield is on: decide() needs the vehicle's motion")
             else:
-                allowed, clearance, self.memory = self._verdict(self.memory, prepared.shield_view, motion)
+                allowed, clearance, self.memory = self._verdict(self.memory, *prepared.shield_view, motion)
         self.history.push(prepared.depth_input, rel_pos_body_m)
         action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed)
         return Decision(action, q, prepared.depth_input, path, allowed, clearance)
 
     def _verdict(
-        self, memory: PointMemory, depth_input: NDArray[np.float32], m: Motion
+        self, memory: PointMemory, depth_input: NDArray[np.float32], at: NDArray[np.float32] | None,
+        m: Motion,
     ) -> tuple[NDArray, NDArray, PointMemory]:
-        """A new memory with this view, and every primitive checked against it (as the sim does)."""
+        """A new memory with this view (its surfaces placed by ``at``, if given), and every
+        primitive checked against it (as the sim does)."""
         cfg, mem = self.shield, memory.copy()
         pos, yaw = m.pos_world_m[None], np.array([m.yaw_rad])
-        mem.add([0], depth_input[None], pos, yaw)
+        mem.add([0], depth_input[None], pos, yaw, None if at is None else at[None])
         allowed, clearance = shield_verdict(
             self.prims, mem.points, mem.depth_m, mem.pose, m.start_world_m[None],
             m.start_vel_world_m_s[None], yaw, pos, m.vel_world_m_s[None], cfg,

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from quadnav_onboard.config import PrimitiveConfig, parse_config
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.policy import Policy, masked_argmax
-from quadnav_onboard.preprocess import depth_inputs_mm
+from quadnav_onboard.preprocess import DepthInputs, depth_inputs_mm
 from quadnav_onboard.shield import ShieldConfig, shield_at_scale, shield_config_from_meta
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.noise import DepthNoise, apply_depth_noise, noise_at_width
@@ -224,7 +224,7 @@ class NoisyDepthEnv(VecQuadNavEnv):
         self._noise = noise
         self._noise_rng = np.random.default_rng(noise_seed)
 
-    def _observe(self, ids: NDArray[np.int64], world: World, yaw: NDArray) -> tuple[NDArray, NDArray]:
+    def _observe(self, ids: NDArray[np.int64], world: World, yaw: NDArray) -> DepthInputs:
         shield = self.config.shield
         nearest = self.memory is not None and shield.depth_pooling == "min"
         frames = render_input_frames_mm(world, self.pos_m[ids], yaw)
@@ -233,9 +233,7 @@ class NoisyDepthEnv(VecQuadNavEnv):
         noisy_m = apply_depth_noise(frames.astype(np.float32) / 1000.0, noise, self._noise_rng,
                                     max_range_m=cam.max_range_m)
         noisy_mm = np.round(noisy_m * 1000.0).clip(0, 65535).astype(np.uint16)
-        depth, near = depth_inputs_mm(noisy_mm, self.config.preprocess, nearest=nearest)
-        assert depth is not None
-        return depth, depth if near is None else near
+        return depth_inputs_mm(noisy_mm, self.config.preprocess, nearest=nearest)
 
 
 def policy_greedy_fn(policy: Policy) -> GreedyFn:
