@@ -152,3 +152,27 @@ def test_worlds_are_sampled_from_the_list() -> None:
     env = VecQuadNavEnv(worlds, 64, seed=3)
     env.reset()
     assert set(env.world_idx.tolist()) == {0, 1}
+
+
+def test_the_training_env_remembers_each_surface_where_its_pixel_saw_it() -> None:
+    """The env's filter memory after reset in lab02 (boxes at 45 degrees) holds the nearest-surface
+    view placed by ``near_at``, as the daemon's decider places it; on the cells' centre rays the
+    points would lie elsewhere (this fails if the env drops ``near_at``)."""
+    from quadnav_onboard.shield import PointMemory, ShieldConfig
+    from quadnav_onboard.step import step_inputs
+    from sim_harness.render import render_inputs
+    from sim_harness.world import resolve_world_arg
+
+    world = load_world(resolve_world_arg("lab02"))
+    shield = ShieldConfig(enabled=True)
+    env = VecQuadNavEnv([world], 3, seed=0, config=EnvConfig(shield=shield), autoreset=False)
+    env.reset()
+    assert env.memory is not None
+    yaw = step_inputs(world.path, env.steps, env.prims.duration_s, env.pos_m).yaw_rad
+    view = render_inputs(world, env.pos_m, yaw, env.config.preprocess, nearest=True)
+    placed, centred = PointMemory(3, shield), PointMemory(3, shield)
+    placed.add(np.arange(3), view.near, env.pos_m, yaw, view.near_at)
+    centred.add(np.arange(3), view.near, env.pos_m, yaw)
+    np.testing.assert_allclose(env.memory.points, placed.points, atol=1e-5)
+    seen = np.isfinite(placed.points[..., 0])
+    assert seen.any() and np.abs(placed.points[seen] - centred.points[seen]).max() > 0.01
