@@ -18,7 +18,8 @@ filter). Each decision of such a flight falls in one of four classes:
 Trace development worlds, never the test set (procedural seed 4242) when choosing anything.
 
 Usage:  python scripts/stall_census.py [--model CKPT] [--world W ... | --procedural N --procedural-seed P]
-            [--primitive-scale M | --flight-config FLIGHT.yaml] [--trials 10] [--seed 0]
+            [--primitive-scale M | --flight-config FLIGHT.yaml [--layouts N --layout-seed S]]
+            [--trials 10] [--seed 0]
             [--shield on|model] [--json OUT]
 """
 

@@ -12,7 +12,8 @@ anything.
 
 Usage:  python scripts/trace_flight.py [--model CKPT] [--world W ... | --procedural N --procedural-seed P]
             [--world-index I] [--trial T] [--trials 10] [--seed 0]
-            [--primitive-scale M | --flight-config FLIGHT.yaml] [--start-jitter-m M] [--max-steps N]
+            [--primitive-scale M | --flight-config FLIGHT.yaml [--layouts N --layout-seed S]]
+            [--start-jitter-m M] [--max-steps N] [--depth-noise auto|on|off]
             [--shield on|off|model] [--shield-set KEY=VALUE ...]
 """
 
@@ -53,7 +54,7 @@ def main() -> int:
     for ob in target.obstacles:
         print("  ", ob)
     directions = np.asarray(flights.env_config.primitives.directions)
-    i, steps = args.trial, [0]
+    i = args.trial
 
     def trace(world, env, depth, rel, actions) -> None:
         if world is not target or env.done[i]:
@@ -63,10 +64,10 @@ def main() -> int:
         seen = env.clearance_m[i]
         top = [(int(a), bool(env.allowed[i, a]), round(float(seen[a]), 2), round(float(true[a]), 2))
                for a in np.argsort(-q[i])[:3]]
-        print(f"{steps[0]:3d} pos {np.round(env.pos_m[i], 2)} allowed {int(env.allowed[i].sum()):2d} "
+        print(f"{int(env.steps[i]):3d} pos {np.round(env.pos_m[i], 2)} "
+              f"allowed {int(env.allowed[i].sum()):2d} "
               f"flies {int(actions[i]):2d} {directions[actions[i]].astype(int)}  "
               f"top 3 (action, allowed, clearance m: the filter's, from the true geometry) {top}")
-        steps[0] += 1
 
     # the worlds before it are flown too: a world's seed is its place in the list (world_seed)
     rows = evaluate(policy_greedy_fn(policy), worlds[: args.world_index + 1], args.trials, args.seed,

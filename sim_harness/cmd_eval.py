@@ -134,22 +134,22 @@ def flights_from_flags(policy: Policy, args: argparse.Namespace) -> Flights:
     ConfigError on bad files."""
     if args.world and args.procedural is not None:
         raise ValueError("give --world or --procedural N, not both")
-    flight_config = getattr(args, "flight_config", None)
+    flight_config = args.flight_config
     if flight_config and (args.primitive_scale is not None or args.max_steps is not None):
         raise ValueError("--flight-config sets the primitives and the step limit: not with "
                          "--primitive-scale or --max-steps")
+    if args.layouts is not None and not (flight_config and args.world):
+        raise ValueError("--layouts N needs --flight-config and the room as --world")
     worlds, paths = worlds_from_flags(args)
     limits = None
     if flight_config:
         env_cfg, worlds, limits = flight_setup(policy, args, worlds, paths)
-        layouts = args.layouts
-        if layouts is not None:
-            worlds = _layouts(env_cfg, worlds, limits, layouts, args.layout_seed)
+        if args.layouts is not None:
+            worlds = _layouts(env_cfg, worlds, limits, args.layouts, args.layout_seed)
     else:
         env_cfg, worlds = sim_env_config(policy, args, worlds)
     noise = None
-    depth_noise = getattr(args, "depth_noise", "auto")
-    if depth_noise == "on" or (depth_noise == "auto" and flight_config):
+    if args.depth_noise == "on" or (args.depth_noise == "auto" and flight_config):
         from sim_harness.noise import DepthNoise
 
         noise = DepthNoise()
@@ -343,12 +343,6 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.policy import DEFAULT_MODEL_PATH
     from sim_harness.rl.evaluate import FilterOverrules, evaluate, format_table, policy_greedy_fn, summarize
 
-    if args.trials < 1 or (args.max_steps is not None and args.max_steps < 1):
-        print("quadnav-sim eval: --trials and --max-steps must be >= 1", file=sys.stderr)
-        return 2
-    if args.layouts is not None and not (args.flight_config and args.world):
-        print("quadnav-sim eval: --layouts N needs --flight-config and the room as --world", file=sys.stderr)
-        return 2
     model = Path(args.model) if args.model else DEFAULT_MODEL_PATH
     loaded = load_flights("quadnav-sim eval", model, args)
     if loaded is None:

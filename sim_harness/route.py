@@ -251,16 +251,28 @@ class LatticeRoute:
         return dataclasses.asdict(self)
 
 
+def _true_clearance(
+    world: World, prims: PrimitiveSet, shield: ShieldConfig, cmd_pos: NDArray, cmd_vel: NDArray,
+    yaw: NDArray, pos: NDArray, vel: NDArray,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each primitive's clearance (M, A) from ``world``'s solids along its path as the filter
+    predicts it (from the commanded point and velocity, the vehicle at ``pos``/``vel``, look-ahead
+    included), lowered by the filter's known room and deviation band
+    (:func:`~quadnav_onboard.shield.within_known_space`); and those samples (M, A, S, 3)."""
+    samples = primitive_samples(prims, cmd_pos, cmd_vel, yaw, shield, pos_world_m=pos, vel_world_m_s=vel)
+    clear = clearance_m(world, samples.reshape(-1, 3)).reshape(samples.shape[:3]).min(axis=2)
+    return within_known_space(clear, samples, shield), samples
+
+
 def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArray, vel: NDArray,
              altitude_m: tuple[float, float] | None) -> tuple[NDArray[np.bool_], NDArray, NDArray]:
     """For M states of a vehicle that tracks perfectly (on its commanded point at its commanded
     velocity): which primitives (M, A) keep every margin against the true geometry, their end
     points and end velocities (M, A, 3)."""
     yaw = world.path.yaw_at(world.path.closest(pos)[0])
-    samples = primitive_samples(prims, pos, vel, yaw, shield, pos_world_m=pos, vel_world_m_s=vel)
-    m, a, k = samples.shape[:3]
-    clear = clearance_m(world, samples.reshape(-1, 3)).reshape(m, a, k).min(axis=2)
-    ok = within_known_space(clear, samples, shield) >= shield.clearance_m
+    clear, samples = _true_clearance(world, prims, shield, pos, vel, yaw, pos, vel)
+    m, a = clear.shape
+    ok = clear >= shield.clearance_m
     if altitude_m is not None:
         z = samples[:, :, :-1, 2]  # where the vehicle is (the supervisor's stop), not the look-ahead
         ok &= (z.min(axis=2) >= altitude_m[0]) & (z.max(axis=2) <= altitude_m[1])
@@ -284,10 +296,8 @@ def true_geometry_verdict(env: VecQuadNavEnv, ids: NDArray[np.int64] | None = No
         sel = ids[rows]
         world, shield = env.worlds[w], env.world_shield(int(w))
         yaw = step_inputs(world.path, env.steps[sel], env.prims.duration_s, env.pos_m[sel]).yaw_rad
-        s = primitive_samples(env.prims, env.cmd_pos_m[sel], env.cmd_vel_m_s[sel], yaw, shield,
-                              pos_world_m=env.pos_m[sel], vel_world_m_s=env.vel_m_s[sel])
-        c = clearance_m(world, s.reshape(-1, 3)).reshape(s.shape[:3]).min(axis=2)
-        clear[rows] = within_known_space(c, s, shield)
+        clear[rows] = _true_clearance(world, env.prims, shield, env.cmd_pos_m[sel], env.cmd_vel_m_s[sel],
+                                      yaw, env.pos_m[sel], env.vel_m_s[sel])[0]
         allowed[rows] = clear[rows] >= shield.clearance_m
     return allowed, clear
 

@@ -195,8 +195,9 @@ def test_a_scale_that_is_not_positive_is_refused_before_any_flight(command: str,
     [
         (["--world", "env05", "--world", "env04", "--max-steps", "25"], 0, 1),
         (["--world", "lab01", "--world", "lab02", "--flight-config", "config/flight.yaml"], 1, 2),
+        (["--world", "lab01", "--layouts", "2", "--flight-config", "config/flight.yaml"], 1, 2),
     ],
-    ids=["paper-world", "lab-under-the-flight-config"],
+    ids=["paper-world", "lab-under-the-flight-config", "a-random-layout-of-the-lab"],
 )
 def test_trace_flight_script_replays_the_flight_eval_flew(flags, index, trial, tmp_path, capsys) -> None:
     """scripts/trace_flight.py flies trial T of world I as ``quadnav-sim eval`` with the same flags
@@ -238,6 +239,9 @@ def test_trace_flight_script_refuses_a_world_index_past_the_list() -> None:
     got = subprocess.run([sys.executable, str(script), "--world", "env01", "--world-index", "1"],
                          capture_output=True, text=True, check=False)
     assert got.returncode == 2 and "the list has 1 worlds" in got.stderr and "Traceback" not in got.stderr
+    bare = subprocess.run([sys.executable, str(script), "--world", "lab01", "--layouts", "2"],
+                          capture_output=True, text=True, check=False)
+    assert bare.returncode == 2 and "--layouts N needs --flight-config" in bare.stderr
 
 
 def test_camera_fov_script_changes_what_the_sim_renders_and_runs_the_command(tmp_path) -> None:
