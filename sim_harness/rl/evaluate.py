@@ -302,6 +302,7 @@ def evaluate(
     known_rooms: bool = True,
     overrules: FilterOverrules | None = None,
     on_step: StepHook | None = None,
+    on_world_start: Callable[[World, VecQuadNavEnv], None] | None = None,
 ) -> list[EvalRow]:
     """Fly ``trials`` greedy episodes in each world; rows in world order, then trial order.
 
@@ -312,12 +313,16 @@ def evaluate(
     world's room (:func:`known_room`). ``depth_noise``: the D435-like noise on every frame.
     ``overrules``: counts the decisions where the filter vetoed the DQN's first choice (costs one
     more network pass per step when the filter is on). ``on_step``: called before every step with
-    the world, its env, the inputs the policy saw and the actions about to be flown (a trace)."""
+    the world, its env, the inputs the policy saw and the actions about to be flown (a trace).
+    ``on_world_start``: called with each world and its env once the env is reset, before the
+    first decision (a planner that reads the env's state, such as the privileged teacher)."""
     rows: list[EvalRow] = []
     for w_i, world in enumerate(worlds):
         env = _world_env(world, w_i, trials, seed, env_config, limits, depth_noise, known_rooms)
         cfg = env.config
         depth, rel = env.reset()
+        if on_world_start is not None:
+            on_world_start(world, env)
         outcome = np.full(trials, None, dtype=object)
         progress = np.zeros(trials)
         while not env.done.all():
