@@ -106,3 +106,22 @@ def test_soft_targets_rank_as_the_costs_and_sum_to_one() -> None:
 def test_bad_teacher_settings_are_refused_by_name(kw: dict) -> None:
     with pytest.raises(ValueError, match=next(iter(kw))):
         TeacherConfig(**kw)
+
+
+def test_field_beside_a_wall_cell_is_its_reachable_corners_not_the_wall() -> None:
+    """A point between a wall cell and free cells takes the free cells' cost-to-go: a wall corner
+    blended in would cost it thousands of metres, a margin a cell wider than the teacher's."""
+    from sim_harness.rl.teacher import CostField
+
+    values = np.full((2, 2, 2), 10.0)
+    values[1, :, :] = 9.0
+    values[1, 1, 1] = UNREACHABLE
+    field = CostField(np.zeros(3), 1.0, values)
+    got = field(np.array([[0.5, 0.5, 0.5], [0.9, 0.9, 0.9], [0.0, 0.0, 0.0]]))
+    # at the centre: 4 corners at 10, 3 at 9 (the wall's weight dropped): 67 / 7
+    assert got[0] == pytest.approx(67.0 / 7.0)
+    assert 9.0 <= got[1] < 10.0  # next to the wall corner, still the free corners' values
+    assert got[2] == pytest.approx(10.0)
+    walled = CostField(np.zeros(3), 1.0, np.full((2, 2, 2), UNREACHABLE))
+    assert walled(np.array([[0.5, 0.5, 0.5]]))[0] == UNREACHABLE
+

@@ -138,14 +138,22 @@ class CostField:
     """(nx, ny, nz); :data:`UNREACHABLE` where the goal cannot be reached."""
 
     def __call__(self, pos_m: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Trilinear interpolation at positions (..., 3); :data:`UNREACHABLE` outside the grid."""
+        """Trilinear interpolation at positions (..., 3) over the reachable corners of each
+        position's cell, their weights renormalised; :data:`UNREACHABLE` outside the grid or where
+        no corner is reachable.
+
+        A wall corner does not count: blended in, its :data:`UNREACHABLE` would make every point
+        within a cell of a wall cost thousands of metres, a margin one cell wider than
+        ``margin_m`` that closes gaps the primitives fit through (the lookahead's crash check,
+        not the field, says whether a primitive's trail keeps the margin)."""
         p = (np.asarray(pos_m, dtype=np.float64) - self.origin_m) / self.grid_m
         shape = np.array(self.values.shape)
         inside = np.all((p >= 0) & (p <= shape - 1), axis=-1)
         p = np.clip(p, 0, shape - 1 - 1e-9)
         i0 = np.floor(p).astype(np.int64)
         f = p - i0
-        out = np.zeros(p.shape[:-1])
+        total = np.zeros(p.shape[:-1])
+        weight = np.zeros(p.shape[:-1])
         for dx in (0, 1):
             wx = f[..., 0] if dx else 1 - f[..., 0]
             for dy in (0, 1):
@@ -153,8 +161,11 @@ class CostField:
                 for dz in (0, 1):
                     wz = f[..., 2] if dz else 1 - f[..., 2]
                     v = self.values[i0[..., 0] + dx, i0[..., 1] + dy, i0[..., 2] + dz]
-                    out += wx * wy * wz * v
-        return np.where(inside, out, UNREACHABLE)
+                    w = np.where(v < UNREACHABLE, wx * wy * wz, 0.0)
+                    total += w * v
+                    weight += w
+        reachable = inside & (weight > 1e-12)
+        return np.where(reachable, total / np.maximum(weight, 1e-12), UNREACHABLE)
 
 
 def cost_field(world: World, radius_m: float, config: TeacherConfig = TeacherConfig()) -> CostField:
