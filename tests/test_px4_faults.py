@@ -57,8 +57,10 @@ def test_freeze_position_holds_the_reported_position_while_the_vehicle_moves() -
         assert gcs.arm() == m.MAV_RESULT_ACCEPTED
         assert gcs.set_mode("OFFBOARD") == m.MAV_RESULT_ACCEPTED
         emu.faults.freeze_position(0.0, 0.8)
+        gcs.setpoint_ned(0.0, 0.0, -1.0)
+        gcs.pump(0.1)  # what the emulator sent before the freeze, still in the socket's buffer
         reported = []
-        end = time.monotonic() + 0.6
+        end = time.monotonic() + 0.5
         while time.monotonic() < end:
             gcs.setpoint_ned(0.0, 0.0, -1.0)
             lp = gcs.wait("LOCAL_POSITION_NED", 0.05)
