@@ -25,7 +25,6 @@ from collections import Counter
 def main() -> int:
     import numpy as np
 
-    from quadnav_onboard.policy import DEFAULT_MODEL_PATH
     from sim_harness.cmd_eval import add_flights_flags, load_flights
     from sim_harness.rl.evaluate import evaluate, summarize
     from sim_harness.rl.teacher import Teacher, TeacherConfig
@@ -42,7 +41,6 @@ def main() -> int:
     if not 0.0 < args.margin_m <= 1.0:
         print(f"teacher_flights: --margin-m: bad value {args.margin_m!r}: must be in (0, 1]", file=sys.stderr)
         return 2
-    args.model = args.model or str(DEFAULT_MODEL_PATH)
     loaded = load_flights("teacher_flights", args.model, args)
     if loaded is None:
         return 2

@@ -26,7 +26,6 @@ import numpy as np
 
 
 def main() -> int:
-    from quadnav_onboard.policy import DEFAULT_MODEL_PATH
     from sim_harness.cmd_eval import add_flights_flags, load_flights
     from sim_harness.rl.evaluate import evaluate, policy_greedy_fn
     from sim_harness.route import true_geometry_verdict
@@ -40,7 +39,7 @@ def main() -> int:
         print(f"trace_flight: need 0 <= --trial < --trials ({args.trials}) and --world-index >= 0",
               file=sys.stderr)
         return 2
-    loaded = load_flights("trace_flight", args.model or DEFAULT_MODEL_PATH, args)
+    loaded = load_flights("trace_flight", args.model, args)
     if loaded is None:
         return 2
     policy, flights = loaded

@@ -156,16 +156,19 @@ def flights_from_flags(policy: Policy, args: argparse.Namespace) -> Flights:
     return Flights(env_cfg, worlds, limits, noise, paths)
 
 
-def load_flights(prog: str, model: str | Path, args: argparse.Namespace) -> tuple[Policy, Flights] | None:
-    """The checkpoint ``model`` and :func:`flights_from_flags`; on bad input (a checkpoint, a world,
-    a flight config, flags) prints ``prog: what is wrong`` to stderr and returns None."""
+def load_flights(
+    prog: str, model: str | Path | None, args: argparse.Namespace
+) -> tuple[Policy, Flights] | None:
+    """The checkpoint ``model`` (None: the shipped model) and :func:`flights_from_flags`; on bad
+    input (a checkpoint, a world, a flight config, flags) prints ``prog: what is wrong`` to stderr
+    and returns None."""
     from quadnav_onboard.checkpoint import CheckpointError
     from quadnav_onboard.config import ConfigError
-    from quadnav_onboard.policy import Policy
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
     from sim_harness.world import WorldError
 
     try:
-        policy = Policy.from_path(model)
+        policy = Policy.from_path(DEFAULT_MODEL_PATH if model is None else model)
         return policy, flights_from_flags(policy, args)
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
