@@ -7,11 +7,14 @@ cost-to-go field and each primitive flown from the env's exact state, two primit
 the reference a DQN that sees one 32x32 depth image per step is measured against, and the labels
 of the privileged DAgger recipes. The flights are those of ``quadnav-sim eval`` with the same
 flags (worlds, scale, ``--trials``, ``--seed``); the model only sets the env (its primitives and
-history lengths), and its filter is off unless asked for.
+history lengths), and its filter is off unless asked for. With ``--shield on`` the filter runs
+beside the teacher and the script counts the decisions whose primitive it would have vetoed;
+``--respect-filter`` makes the teacher choose among what the filter allows (the
+``teacher_respect_filter`` training key).
 
 Usage:  python scripts/teacher_flights.py [--world W ... | --procedural N --procedural-seed P]
             [--primitive-scale M] [--trials 10] [--seed 0] [--margin-m 0.15] [--lookahead 2]
-            [--json OUT]
+            [--shield on --respect-filter] [--json OUT]
 """
 
 from __future__ import annotations
@@ -36,8 +39,13 @@ def main() -> int:
                          "(default: %(default)s)")
     ap.add_argument("--lookahead", type=int, default=TeacherConfig.lookahead, choices=(1, 2),
                     help="primitives flown per decision (default: %(default)s)")
+    ap.add_argument("--respect-filter", action="store_true",
+                    help="the teacher chooses among the primitives the filter allows (needs --shield on)")
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args()
+    if args.respect_filter and args.shield != "on":
+        print("teacher_flights: --respect-filter: the filter's verdicts need --shield on", file=sys.stderr)
+        return 2
     if not 0.0 < args.margin_m <= 1.0:
         print(f"teacher_flights: --margin-m: bad value {args.margin_m!r}: must be in (0, 1]", file=sys.stderr)
         return 2
@@ -45,8 +53,10 @@ def main() -> int:
     if loaded is None:
         return 2
     _, flights = loaded
-    teacher = Teacher(TeacherConfig(margin_m=args.margin_m, lookahead=args.lookahead))
+    teacher = Teacher(TeacherConfig(margin_m=args.margin_m, lookahead=args.lookahead,
+                                    respect_filter=args.respect_filter))
     current: list = [None]
+    vetoed = Counter()
 
     def act(depth, rel, allowed):
         env = current[0]
@@ -54,6 +64,11 @@ def main() -> int:
         running = np.flatnonzero(~env.done)
         if running.size:
             actions[running] = teacher.labels(env, running)
+            if env.memory is not None:  # the filter runs: would it have vetoed the choice?
+                ok = allowed[running]
+                chosen = ok[np.arange(running.size), actions[running]]
+                vetoed["decisions"] += running.size
+                vetoed["vetoed"] += int((ok.any(axis=1) & ~chosen).sum())
         return actions
 
     rows = evaluate(act, flights.worlds, args.trials, args.seed, flights.env_config,
@@ -67,9 +82,13 @@ def main() -> int:
         print(f"{world:28s} " + ", ".join(f"{k} {v}" for k, v in sorted(c.items())))
     print(f"trials {summary['trials']}: goal {summary['success_rate']:.1%}, "
           f"collision-free {summary['collision_free_rate']:.1%}")
+    if vetoed["decisions"]:
+        print(f"the filter would veto the teacher's choice in {vetoed['vetoed']} of "
+              f"{vetoed['decisions']} decisions")
     if args.json:
         out = {"margin_m": args.margin_m, "lookahead": args.lookahead, "seed": args.seed,
-               "trials": args.trials, "summary": summary,
+               "trials": args.trials, "summary": summary, "respect_filter": args.respect_filter,
+               "filter_vetoes": dict(vetoed) if vetoed["decisions"] else None,
                "by_world": {w: dict(c) for w, c in by_world.items()},
                "rows": [r.to_dict() for r in rows]}
         with open(args.json, "w") as f:

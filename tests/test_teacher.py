@@ -6,8 +6,17 @@ import numpy as np
 import pytest
 
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
-from sim_harness.rl.teacher import UNREACHABLE, Teacher, TeacherConfig, cost_field, soft_targets
+from sim_harness.rl.config import ConfigError, load_train_config
+from sim_harness.rl.teacher import (
+    UNREACHABLE,
+    Teacher,
+    TeacherConfig,
+    cost_field,
+    soft_targets,
+    vetoed_as_crashes,
+)
 from sim_harness.world import parse_world
 
 FORWARD = DEFAULT_DIRECTIONS.index((1, 0, 0))
@@ -125,3 +134,48 @@ def test_field_beside_a_wall_cell_is_its_reachable_corners_not_the_wall() -> Non
     walled = CostField(np.zeros(3), 1.0, np.full((2, 2, 2), UNREACHABLE))
     assert walled(np.array([[0.5, 0.5, 0.5]]))[0] == UNREACHABLE
 
+
+
+def test_vetoed_primitives_cost_a_crash_unless_the_filter_vetoes_all() -> None:
+    costs = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
+    allowed = np.array([[False, True, True], [False, False, False]])
+    got = vetoed_as_crashes(costs, allowed, 100.0)
+    assert got.tolist() == [[101.0, 2.0, 3.0], [1.0, 2.0, 3.0]]
+    with pytest.raises(ValueError, match="shape"):
+        vetoed_as_crashes(costs[:, :2], allowed, 100.0)
+
+
+def test_teacher_respecting_the_filter_needs_the_env_to_run_it() -> None:
+    with pytest.raises(ValueError, match="filter on"):
+        Teacher(TeacherConfig(respect_filter=True)).labels(_env(_world([])))
+
+
+def test_teacher_respecting_the_filter_takes_its_best_allowed_primitive() -> None:
+    # the only-gap wall of the test above, the filter running; its verdicts are then set to veto
+    # the teacher's own first and second choices in one env and everything in the other
+    wall = {"type": "box", "center": [2.3, 2.0, 2.0], "size": [0.4, 6.0, 4.0], "yaw_deg": 0.0}
+    env = VecQuadNavEnv([_world([wall])], 2, seed=0, autoreset=False,
+                        config=EnvConfig(start_jitter_m=0.0, shield=ShieldConfig(enabled=True)))
+    env.reset()
+    plain, strict = Teacher(), Teacher(TeacherConfig(respect_filter=True))
+    costs = plain.action_costs(env, np.arange(2))
+    order = np.argsort(costs[0])
+    assert np.array_equal(strict.labels(env), plain.labels(env))  # nothing vetoed: the same choice
+    env.allowed[:] = True
+    env.allowed[0, order[:2]] = False
+    env.allowed[1, :] = False
+    targets, actions = strict.label(env, None, None, 0.5)
+    assert actions[0] == order[2]  # the best of what the filter allows
+    assert actions[1] == np.argmin(costs[1])  # all vetoed: the teacher's own choice, as the product flies it
+    assert targets[0, order[:2]].max() < targets[0, order[2]]
+    assert np.array_equal(strict.labels(env, np.array([0, 1])), actions)
+
+
+def test_teacher_respecting_the_filter_needs_the_filter_and_the_privileged_teacher() -> None:
+    with pytest.raises(ConfigError, match=r"teacher_respect_filter.*shield"):
+        load_train_config({"teacher_respect_filter": True}, "recipe.yaml")
+    with pytest.raises(ConfigError, match=r"teacher_respect_filter.*privileged"):
+        load_train_config({"teacher_respect_filter": True, "shield": True, "imitation_teacher": "filter",
+                           "init_model": "m.pt"}, "recipe.yaml")
+    ok = load_train_config({"teacher_respect_filter": True, "shield": True}, "recipe.yaml")
+    assert ok.teacher_respect_filter

@@ -52,3 +52,25 @@ def test_a_margin_out_of_range_is_refused_by_name() -> None:
                          capture_output=True, text=True)
     assert run.returncode == 2
     assert "--margin-m" in run.stderr and "nan" in run.stderr
+
+
+def test_with_the_filter_on_the_script_counts_its_vetoes_of_the_teacher(tmp_path) -> None:
+    out = tmp_path / "t.json"
+    flags = ["--world", "env03", "--trials", "2", "--seed", "3", "--primitive-scale", "0.5",
+             "--shield", "on", "--respect-filter", "--json", str(out)]
+    run = subprocess.run([sys.executable, str(SCRIPT), *flags], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    r = json.loads(out.read_text())
+    v = r["filter_vetoes"]
+    assert r["respect_filter"] is True
+    # one decision per step of each flight (a 0.5 m primitive lasts 1 s at 0.5 m/s)
+    assert v["decisions"] == round(sum(row["time_s"] for row in r["rows"]))
+    assert v["vetoed"] == 0  # respecting the filter, it never chooses what the filter vetoes
+    assert "would veto the teacher's choice" in run.stdout
+
+
+def test_respecting_the_filter_needs_it_on() -> None:
+    run = subprocess.run([sys.executable, str(SCRIPT), "--world", "env01", "--respect-filter"],
+                         capture_output=True, text=True)
+    assert run.returncode == 2
+    assert "--respect-filter" in run.stderr and "--shield on" in run.stderr

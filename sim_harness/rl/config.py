@@ -234,6 +234,9 @@ class TrainConfig:
     Range: (0, 1]."""
     teacher_grid_m: Annotated[float, pydantic.Field(ge=0.05, le=1)] = 0.25
     """Voxel size (m) of the teacher's cost-to-go field. Range: [0.05, 1]."""
+    teacher_respect_filter: bool = False
+    """The privileged teacher chooses among the primitives the env's depth filter allows (it
+    prices the vetoed ones as crashes, where the filter allows any); needs ``shield``."""
     init_model: str = ""
     """Checkpoint whose weights start the online and target networks (fine-tuning; "" = random
     init). Its network shape must match this config's, except that this config's depth and position
@@ -302,6 +305,11 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'dagger_filtered_share': bad value {cfg.dagger_filtered_share!r}: "
             "flying behind the filter needs shield: true"
+        )
+    if cfg.teacher_respect_filter and not (cfg.shield and cfg.imitation_teacher == "privileged"):
+        raise ConfigError(
+            f"{source}: key 'teacher_respect_filter': bad value True: the privileged teacher "
+            "respects the filter's verdicts: set imitation_teacher: privileged and shield: true"
         )
     if cfg.imitation_veto_weight > 0 and not cfg.shield:
         raise ConfigError(

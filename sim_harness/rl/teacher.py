@@ -41,7 +41,7 @@ from sim_harness.collision import clearance_m
 from sim_harness.quad import QuadState, track
 from sim_harness.world import World
 
-__all__ = ["CostField", "Teacher", "TeacherConfig", "cost_field", "soft_targets"]
+__all__ = ["CostField", "Teacher", "TeacherConfig", "cost_field", "soft_targets", "vetoed_as_crashes"]
 
 UNREACHABLE = 1.0e4
 """Field value (m) of cells from which the goal cannot be reached (walls included)."""
@@ -71,6 +71,9 @@ class TeacherConfig:
     round the outer end of a slalom's panel, is one the primitives' 1 m lattice rarely fits)."""
     goal_radius_m: float = 0.9
     """Cells this close to the goal are the field's zero."""
+    respect_filter: bool = False
+    """Price the primitives the env's depth filter vetoes (it sees only what the vehicle saw) as
+    crashes, where it allows any: the teacher then chooses among what the flown product allows."""
 
     def __post_init__(self) -> None:
         for name in ("grid_m", "comfort_m", "margin_m", "max_deviation_m", "goal_radius_m"):
@@ -202,6 +205,18 @@ def soft_targets(costs: NDArray[np.float64], temperature_m: float) -> NDArray[np
     return (p / p.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
+def vetoed_as_crashes(costs: NDArray[np.float64], allowed: NDArray[np.bool_], crash_cost: float
+                      ) -> NDArray[np.float64]:
+    """``costs`` (N, A) plus ``crash_cost`` on each primitive the filter does not ``allow`` (N, A);
+    a row the filter vetoes entirely is left as it is (the product then flies the arg-max of all,
+    :func:`~quadnav_onboard.policy.masked_argmax`)."""
+    allowed = np.asarray(allowed, dtype=bool)
+    if allowed.shape != costs.shape:
+        raise ValueError(f"costs {costs.shape} and the filter's verdicts {allowed.shape} differ in shape")
+    vetoed = ~allowed & allowed.any(axis=1, keepdims=True)
+    return costs + crash_cost * vetoed
+
+
 class Teacher:
     """Labels the states of a :class:`~sim_harness.env.VecQuadNavEnv` with the TRUE geometry.
 
@@ -219,7 +234,7 @@ class Teacher:
     def label(self, env, depth: NDArray, rel: NDArray, temperature_m: float
               ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
         """(soft targets (N, A), the teacher's actions (N,)) for every env of ``env``."""
-        costs = self.action_costs(env, np.arange(env.n_envs))
+        costs = self.choice_costs(env, np.arange(env.n_envs))
         return soft_targets(costs, temperature_m), np.argmin(costs, axis=1)
 
     def field(self, world: World, radius_m: float) -> CostField:
@@ -254,9 +269,21 @@ class Teacher:
             crash = crash + cfg.crash_cost * ~(clear2.reshape(m * a_n, a_n) >= limit).any(axis=1)
         return (to_go + crash + cfg.setpoint_weight * tracking).reshape(m, a_n)
 
+    def choice_costs(self, env, ids: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """:meth:`action_costs`, with the filter's vetoes priced as crashes when the teacher
+        respects the filter (``TeacherConfig.respect_filter``)."""
+        ids = np.flatnonzero(~env.done) if ids is None else np.asarray(ids, dtype=np.int64)
+        costs = self.action_costs(env, ids)
+        if not self.config.respect_filter:
+            return costs
+        if env.memory is None:
+            raise ValueError("the teacher respects the filter only with the env's filter on "
+                             "(EnvConfig.shield.enabled)")
+        return vetoed_as_crashes(costs, np.asarray(env.allowed)[ids], self.config.crash_cost)
+
     def labels(self, env, ids: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
-        """The teacher's primitive (its cost's arg-min) for the envs ``ids``."""
-        return np.argmin(self.action_costs(env, ids), axis=1)
+        """The teacher's primitive (the arg-min of :meth:`choice_costs`) for the envs ``ids``."""
+        return np.argmin(self.choice_costs(env, ids), axis=1)
 
     def _field(self, env, wid: NDArray[np.int64], pos: NDArray, radius_m: float) -> NDArray:
         out = np.empty(pos.shape[0])

@@ -226,7 +226,8 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         teacher = FilterTeacher(agent.q, cfg.filter_veto_margin, device=cfg.device)
     else:
         teacher = Teacher(TeacherConfig(
-            grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead
+            grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead,
+            respect_filter=cfg.teacher_respect_filter,
         ))
     tasks = []
     for s in cfg.imitation_scales:
