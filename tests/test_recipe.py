@@ -22,6 +22,7 @@ SHIPPED = REPO / "recipes" / "shipped.yaml"
 FILTER_TEACHER = REPO / "recipes" / "filter-teacher.yaml"
 FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
 PRIVILEGED = REPO / "recipes" / "privileged.yaml"
+PRIVILEGED_H6 = REPO / "recipes" / "privileged-h6.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -72,6 +73,18 @@ def test_privileged_recipe_is_the_filter_teacher_recipe_with_the_privileged_teac
     assert (recipe.imitation_teacher, recipe.dagger_filtered_share, recipe.dagger_iterations) == (
         "privileged", 0.5, 15)
     assert (REPO / recipe.init_model).resolve() == DEFAULT_MODEL_PATH.resolve()
+
+
+def test_privileged_six_frame_recipe_is_the_privileged_recipe_with_its_two_flags() -> None:
+    """recipes/privileged-h6.yaml is recipes/privileged.yaml with ``--depth-history 6
+    --teacher-respect-filter`` (the commands its figures were measured with), under its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_H6)]))
+    flags = cmd_train.config_for(
+        _parse(["--recipe", str(PRIVILEGED), "--depth-history", "6", "--teacher-respect-filter"])
+    )
+    assert recipe.name == "privileged-h6"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert (recipe.depth_history, recipe.teacher_respect_filter) == (6, True)
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
