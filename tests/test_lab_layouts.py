@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -106,6 +107,9 @@ def test_the_lab_task_flies_the_layouts_with_depth_noise_and_a_teacher_within_th
     assert teacher_cfg.max_deviation_m < lab.config.reward.max_deviation_m
     env = task.make_env(list(task.worlds), 2, seed=0, config=task.config)
     assert isinstance(env, NoisyDepthEnv)
+    assert teacher_cfg.respect_filter is False
+    strict = lab_task(dataclasses.replace(cfg, teacher_respect_filter=True), lab)
+    assert strict.teacher.config.respect_filter is True  # type: ignore[attr-defined]
 
 
 def test_lab_keys_are_checked_before_a_run_starts(tmp_path):

@@ -77,7 +77,7 @@ def lab_task(cfg: TrainConfig, lab: LabSetup, teacher: Labeller | None = None) -
             grid_m=min(cfg.teacher_grid_m, 0.1), margin_m=cfg.teacher_margin_m,
             lookahead=cfg.teacher_lookahead,
             max_deviation_m=max(max_dev - shield.band_margin_m, 0.1),
-            goal_radius_m=env_cfg.goal_radius_m,
+            goal_radius_m=env_cfg.goal_radius_m, respect_filter=cfg.teacher_respect_filter,
         ))
     make_env = functools.partial(NoisyDepthEnv, noise=DepthNoise(), noise_seed=cfg.seed + 7919)
     return DaggerTask(env_cfg, layouts, teacher, make_env)
