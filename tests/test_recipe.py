@@ -21,6 +21,7 @@ PAPER = REPO / "recipes" / "paper.yaml"
 SHIPPED = REPO / "recipes" / "shipped.yaml"
 FILTER_TEACHER = REPO / "recipes" / "filter-teacher.yaml"
 FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
+FILTER_TEACHER_H6P12 = REPO / "recipes" / "filter-teacher-h6p12.yaml"
 PRIVILEGED = REPO / "recipes" / "privileged.yaml"
 PRIVILEGED_H6 = REPO / "recipes" / "privileged-h6.yaml"
 
@@ -57,6 +58,16 @@ def test_six_frame_recipe_is_the_filter_teacher_recipe_with_its_two_flags() -> N
     assert h6.name == "filter-teacher-h6"
     assert dataclasses.replace(h6, name=flags.name) == flags
     assert (h6.depth_history, h6.imitation_veto_weight) == (6, 1.0)
+
+
+def test_twelve_position_recipe_is_the_six_frame_recipe_with_its_flag() -> None:
+    """recipes/filter-teacher-h6p12.yaml is recipes/filter-teacher-h6.yaml with
+    ``--position-history 12`` (the command its figures were measured with), under its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(FILTER_TEACHER_H6P12)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(FILTER_TEACHER_H6), "--position-history", "12"]))
+    assert recipe.name == "filter-teacher-h6p12"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert (recipe.depth_history, recipe.position_history) == (6, 12)
 
 
 def test_privileged_recipe_is_the_filter_teacher_recipe_with_the_privileged_teacher() -> None:

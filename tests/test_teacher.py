@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
-from sim_harness.rl.config import ConfigError, load_train_config
+from sim_harness.rl.config import ConfigError, TrainConfig, load_train_config
 from sim_harness.rl.teacher import (
     UNREACHABLE,
     Teacher,
     TeacherConfig,
     cost_field,
     soft_targets,
+    teacher_config,
     vetoed_as_crashes,
 )
 from sim_harness.world import parse_world
@@ -179,3 +182,19 @@ def test_teacher_respecting_the_filter_needs_the_filter_and_the_privileged_teach
                            "init_model": "m.pt"}, "recipe.yaml")
     ok = load_train_config({"teacher_respect_filter": True, "shield": True}, "recipe.yaml")
     assert ok.teacher_respect_filter
+
+
+def test_teacher_config_carries_every_teacher_key_of_the_training_config() -> None:
+    """Each ``teacher_*`` key of TrainConfig, set away from its default, reaches the TeacherConfig
+    field of the same name; an override wins over the key."""
+    cfg = TrainConfig(
+        shield=True, imitation_teacher="privileged", teacher_grid_m=0.5, teacher_margin_m=0.3,
+        teacher_lookahead=1, teacher_respect_filter=True,
+    )
+    keys = [f.name for f in dataclasses.fields(TrainConfig) if f.name.startswith("teacher_")]
+    assert len(keys) == 4
+    tc = teacher_config(cfg)
+    for key in keys:
+        assert getattr(tc, key.removeprefix("teacher_")) == getattr(cfg, key) != getattr(TrainConfig(), key)
+    lab = teacher_config(cfg, grid_m=0.1, goal_radius_m=0.5)
+    assert lab == dataclasses.replace(tc, grid_m=0.1, goal_radius_m=0.5)

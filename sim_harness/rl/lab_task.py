@@ -22,7 +22,7 @@ from sim_harness.noise import DepthNoise
 from sim_harness.rl.config import TrainConfig
 from sim_harness.rl.evaluate import FlightLimits, NoisyDepthEnv, flight_setup_for, known_room
 from sim_harness.rl.imitation import DaggerTask, Labeller
-from sim_harness.rl.teacher import Teacher, TeacherConfig
+from sim_harness.rl.teacher import Teacher, teacher_config
 from sim_harness.world import World, load_world, resolve_world_arg
 
 __all__ = ["LabSetup", "flight_layouts", "lab_setup", "lab_task"]
@@ -73,11 +73,9 @@ def lab_task(cfg: TrainConfig, lab: LabSetup, teacher: Labeller | None = None) -
     max_dev = env_cfg.reward.max_deviation_m  # the episode's stop: the flight's deviation limit
     layouts = flight_layouts(lab.room, env_cfg, lab.limits, cfg.lab_layouts, cfg.lab_layout_seed)
     if teacher is None:
-        teacher = Teacher(TeacherConfig(
-            grid_m=min(cfg.teacher_grid_m, 0.1), margin_m=cfg.teacher_margin_m,
-            lookahead=cfg.teacher_lookahead,
-            max_deviation_m=max(max_dev - shield.band_margin_m, 0.1),
-            goal_radius_m=env_cfg.goal_radius_m, respect_filter=cfg.teacher_respect_filter,
+        teacher = Teacher(teacher_config(
+            cfg, grid_m=min(cfg.teacher_grid_m, 0.1),
+            max_deviation_m=max(max_dev - shield.band_margin_m, 0.1), goal_radius_m=env_cfg.goal_radius_m,
         ))
     make_env = functools.partial(NoisyDepthEnv, noise=DepthNoise(), noise_seed=cfg.seed + 7919)
     return DaggerTask(env_cfg, layouts, teacher, make_env)

@@ -27,10 +27,12 @@ when it vetoes the first choice.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
@@ -41,7 +43,13 @@ from sim_harness.collision import clearance_m
 from sim_harness.quad import QuadState, track
 from sim_harness.world import World
 
-__all__ = ["CostField", "Teacher", "TeacherConfig", "cost_field", "soft_targets", "vetoed_as_crashes"]
+if TYPE_CHECKING:
+    from sim_harness.rl.config import TrainConfig
+
+__all__ = [
+    "CostField", "Teacher", "TeacherConfig", "cost_field", "soft_targets", "teacher_config",
+    "vetoed_as_crashes",
+]
 
 UNREACHABLE = 1.0e4
 """Field value (m) of cells from which the goal cannot be reached (walls included)."""
@@ -169,6 +177,17 @@ class CostField:
                     weight += w
         reachable = inside & (weight > 1e-12)
         return np.where(reachable, total / np.maximum(weight, 1e-12), UNREACHABLE)
+
+
+def teacher_config(cfg: TrainConfig, **overrides: Any) -> TeacherConfig:
+    """The teacher a training config asks for: each ``teacher_*`` key of ``cfg`` sets the
+    :class:`TeacherConfig` field of the same name without the prefix; ``overrides`` set fields
+    the flight decides (a lab's finer grid, its deviation limit and goal radius)."""
+    keys = {
+        f.name.removeprefix("teacher_"): getattr(cfg, f.name)
+        for f in dataclasses.fields(cfg) if f.name.startswith("teacher_")
+    }
+    return TeacherConfig(**{**keys, **overrides})
 
 
 def cost_field(world: World, radius_m: float, config: TeacherConfig = TeacherConfig()) -> CostField:

@@ -54,7 +54,7 @@ from sim_harness.rl.runlog import (
 )
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.rl.tblog import TensorBoardLog, open_tensorboard
-from sim_harness.rl.teacher import Teacher, TeacherConfig
+from sim_harness.rl.teacher import Teacher, teacher_config
 from sim_harness.rl.widen import can_widen, widen_history
 from sim_harness.world import World, load_world, paper_world_path
 
@@ -225,10 +225,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
     if cfg.imitation_teacher == "filter":
         teacher = FilterTeacher(agent.q, cfg.filter_veto_margin, device=cfg.device)
     else:
-        teacher = Teacher(TeacherConfig(
-            grid_m=cfg.teacher_grid_m, margin_m=cfg.teacher_margin_m, lookahead=cfg.teacher_lookahead,
-            respect_filter=cfg.teacher_respect_filter,
-        ))
+        teacher = Teacher(teacher_config(cfg))
     tasks = []
     for s in cfg.imitation_scales:
         scaled_cfg, scaled = (
