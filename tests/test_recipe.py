@@ -24,6 +24,7 @@ FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
 FILTER_TEACHER_H6P12 = REPO / "recipes" / "filter-teacher-h6p12.yaml"
 PRIVILEGED = REPO / "recipes" / "privileged.yaml"
 PRIVILEGED_H6 = REPO / "recipes" / "privileged-h6.yaml"
+PRIVILEGED_H6P12 = REPO / "recipes" / "privileged-h6p12.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -96,6 +97,16 @@ def test_privileged_six_frame_recipe_is_the_privileged_recipe_with_its_two_flags
     assert recipe.name == "privileged-h6"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert (recipe.depth_history, recipe.teacher_respect_filter) == (6, True)
+
+
+def test_privileged_twelve_position_recipe_is_the_privileged_six_frame_recipe_with_its_flag() -> None:
+    """recipes/privileged-h6p12.yaml is recipes/privileged-h6.yaml with ``--position-history 12``
+    (the command its figures were measured with), under its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_H6P12)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_H6), "--position-history", "12"]))
+    assert recipe.name == "privileged-h6p12"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert (recipe.depth_history, recipe.position_history, recipe.teacher_respect_filter) == (6, 12, True)
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
