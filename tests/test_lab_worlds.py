@@ -16,12 +16,13 @@ from quadnav_onboard.shield import ShieldConfig
 from sim_harness.collision import clearance_m
 from sim_harness.env import VecQuadNavEnv
 from sim_harness.render import render_inputs
-from sim_harness.rl.evaluate import FlightLimits, evaluate, flight_eval_setup, known_room
+from sim_harness.rl.evaluate import FlightLimits, evaluate, flight_eval_setup, known_room, policy_greedy_fn
 from sim_harness.route import route_report
 from sim_harness.world import WorldError, load_world, parse_world, resolve_world_arg, world_to_mapping
 
 REPO = Path(__file__).resolve().parents[1]
 FLIGHT = REPO / "config" / "flight.yaml"
+PGUD_MODEL_PATH = REPO / "quadnav_onboard" / "models" / "pgud.pt"
 ROOM = {
     "name": "room",
     "path": {"waypoints": [[0, 0, 1.2], [2, 2, 1.2]]},
@@ -201,15 +202,16 @@ def test_a_corner_start_leaves_the_filter_no_sideways_move_and_a_near_box_no_for
     assert ((1, 0, 0) in allowed) is forward
 
 
-def test_in_the_one_box_lab_the_shipped_model_hovers_where_the_filter_still_allows_a_way_on():
-    """docs/results.md, "Lab rehearsal": from lab03's start (no jitter, no noise) the shipped model
-    flies forward, left and up, then holds its place about 0.5 m along until the step limit. The
-    filter vetoes the forward primitive there (the box's corner) but still allows one that moves
-    on (forward-left), and the DQN ranks hover above it: the planner, not the filter, stops it."""
+def test_in_the_one_box_lab_the_pgud_model_hovers_where_the_filter_still_allows_a_way_on():
+    """docs/results.md, "Lab rehearsal": from lab03's start (no jitter, no noise) the pgud model
+    (bundled until 0.5.0) flies forward, left and up, then holds its place about 0.5 m along until
+    the step limit. The filter vetoes the forward primitive there (the box's corner) but still
+    allows one that moves on (forward-left), and the DQN ranks hover above it: the planner, not the
+    filter, stops it. The bundled model, taught in the lab's layouts, flies on to the goal."""
     from quadnav_onboard.policy import masked_argmax
 
     flight = load_flight_config(FLIGHT)
-    policy = Policy.from_path(DEFAULT_MODEL_PATH)
+    policy = Policy.from_path(PGUD_MODEL_PATH)
     env_cfg, worlds, limits = flight_eval_setup(
         policy, flight, [load_world(resolve_world_arg("lab03"))], start_jitter_m=0.0
     )
@@ -226,3 +228,10 @@ def test_in_the_one_box_lab_the_shipped_model_hovers_where_the_filter_still_allo
     assert (1, 0, 0) not in allowed and any(d[0] == 1 for d in allowed)
     chosen = masked_argmax(policy.q_values_batch(depth, rel), env.allowed)[0]
     assert DEFAULT_DIRECTIONS[chosen] == (0, 0, 0)
+
+    bundled = Policy.from_path(DEFAULT_MODEL_PATH)
+    env_cfg, worlds, limits = flight_eval_setup(
+        bundled, flight, [load_world(resolve_world_arg("lab03"))], start_jitter_m=0.0
+    )
+    (row,) = evaluate(policy_greedy_fn(bundled), worlds, 1, 0, env_cfg, limits=limits)
+    assert row.outcome == "goal" and not row.crash

@@ -1,5 +1,6 @@
 """Recipe files: recipes/paper.yaml is the code's paper recipe (TrainConfig's defaults),
-recipes/shipped.yaml the config the shipped model was trained with; ``quadnav-sim train --recipe``
+recipes/shipped.yaml the config the shipped model was trained with, recipes/pgud.yaml the one of
+quadnav_onboard/models/pgud.pt (the imitation recipes' starting point); ``quadnav-sim train --recipe``
 maps a file's keys onto TrainConfig by field name, and refuses bad ones naming file, key and value."""
 
 from __future__ import annotations
@@ -19,12 +20,15 @@ from sim_harness.rl.config import TrainConfig, load_train_config
 REPO = Path(__file__).resolve().parent.parent
 PAPER = REPO / "recipes" / "paper.yaml"
 SHIPPED = REPO / "recipes" / "shipped.yaml"
+PGUD = REPO / "recipes" / "pgud.yaml"
+PGUD_MODEL = REPO / "quadnav_onboard" / "models" / "pgud.pt"
 FILTER_TEACHER = REPO / "recipes" / "filter-teacher.yaml"
 FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
 FILTER_TEACHER_H6P12 = REPO / "recipes" / "filter-teacher-h6p12.yaml"
 PRIVILEGED = REPO / "recipes" / "privileged.yaml"
 PRIVILEGED_H6 = REPO / "recipes" / "privileged-h6.yaml"
 PRIVILEGED_H6P12 = REPO / "recipes" / "privileged-h6p12.yaml"
+PRIVILEGED_LAB = REPO / "recipes" / "privileged-lab.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -47,6 +51,13 @@ def test_shipped_recipe_file_is_what_the_shipped_model_was_trained_with() -> Non
     shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
     assert shipped == trained
     assert shipped != TrainConfig()
+
+
+def test_pgud_recipe_file_is_what_the_pgud_model_was_trained_with() -> None:
+    """recipes/pgud.yaml equals the TrainConfig in pgud.pt's meta, as recipes/shipped.yaml does
+    default.pt's."""
+    meta = load_checkpoint(PGUD_MODEL).meta["train_config"]
+    assert cmd_train.config_for(_parse(["--recipe", str(PGUD)])) == load_train_config(meta, "pgud.pt")
 
 
 def test_six_frame_recipe_is_the_filter_teacher_recipe_with_its_two_flags() -> None:
@@ -84,7 +95,7 @@ def test_privileged_recipe_is_the_filter_teacher_recipe_with_the_privileged_teac
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert (recipe.imitation_teacher, recipe.dagger_filtered_share, recipe.dagger_iterations) == (
         "privileged", 0.5, 15)
-    assert (REPO / recipe.init_model).resolve() == DEFAULT_MODEL_PATH.resolve()
+    assert (REPO / recipe.init_model).resolve() == PGUD_MODEL.resolve()
 
 
 def test_privileged_six_frame_recipe_is_the_privileged_recipe_with_its_two_flags() -> None:
@@ -107,6 +118,25 @@ def test_privileged_twelve_position_recipe_is_the_privileged_six_frame_recipe_wi
     assert recipe.name == "privileged-h6p12"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert (recipe.depth_history, recipe.position_history, recipe.teacher_respect_filter) == (6, 12, True)
+
+
+def test_privileged_lab_recipe_is_the_twelve_position_recipe_with_the_lab_s_layouts() -> None:
+    """recipes/privileged-lab.yaml is recipes/privileged-h6p12.yaml with recipes/lab.yaml's three
+    lab keys (DAgger also flies the lab's box layouts under its flight config), under its own name,
+    starting from the ``pgud`` weights that the other recipes start from."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB)]))
+    lab = cmd_train.config_for(_parse(["--recipe", str(REPO / "recipes" / "lab.yaml")]))
+    flags = cmd_train.config_for(_parse([
+        "--recipe", str(PRIVILEGED_H6P12), "--lab-world", lab.lab_world,
+        "--lab-flight-config", lab.lab_flight_config, "--lab-layouts", str(lab.lab_layouts),
+        "--init-model", recipe.init_model,
+    ]))
+    assert recipe.name == "privileged-lab"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert (recipe.lab_world, recipe.lab_flight_config, recipe.lab_layouts) == (
+        "lab01-free", "config/flight.yaml", 200)
+    h6p12 = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_H6P12)]))
+    assert (REPO / recipe.init_model).read_bytes() == (REPO / h6p12.init_model).read_bytes()
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
