@@ -43,21 +43,16 @@ def test_paper_recipe_file_is_the_code_s_paper_recipe() -> None:
     assert cmd_train.config_for(_parse(["--recipe", str(PAPER)])) == TrainConfig()
 
 
-def test_shipped_recipe_file_is_what_the_shipped_model_was_trained_with() -> None:
-    """recipes/shipped.yaml equals the TrainConfig in default.pt's meta (keys added to TrainConfig
-    since then at their defaults), and it differs from the paper's recipe."""
-    meta = load_checkpoint(DEFAULT_MODEL_PATH).meta["train_config"]
-    trained = load_train_config(meta, "default.pt meta.train_config")
-    shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
-    assert shipped == trained
-    assert shipped != TrainConfig()
-
-
-def test_pgud_recipe_file_is_what_the_pgud_model_was_trained_with() -> None:
-    """recipes/pgud.yaml equals the TrainConfig in pgud.pt's meta, as recipes/shipped.yaml does
-    default.pt's."""
-    meta = load_checkpoint(PGUD_MODEL).meta["train_config"]
-    assert cmd_train.config_for(_parse(["--recipe", str(PGUD)])) == load_train_config(meta, "pgud.pt")
+@pytest.mark.parametrize(("recipe", "model"), [(SHIPPED, DEFAULT_MODEL_PATH), (PGUD, PGUD_MODEL)])
+def test_a_bundled_model_s_recipe_file_is_what_it_was_trained_with(recipe: Path, model: Path) -> None:
+    """recipes/shipped.yaml (default.pt) and recipes/pgud.yaml (pgud.pt) each equal the TrainConfig
+    in their model's meta (keys added to TrainConfig since then at their defaults), and differ from
+    the paper's recipe."""
+    meta = load_checkpoint(model).meta["train_config"]
+    trained = load_train_config(meta, f"{model.name} meta.train_config")
+    from_file = cmd_train.config_for(_parse(["--recipe", str(recipe)]))
+    assert from_file == trained
+    assert from_file != TrainConfig()
 
 
 def test_six_frame_recipe_is_the_filter_teacher_recipe_with_its_two_flags() -> None:
@@ -129,14 +124,19 @@ def test_privileged_lab_recipe_is_the_twelve_position_recipe_with_the_lab_s_layo
     flags = cmd_train.config_for(_parse([
         "--recipe", str(PRIVILEGED_H6P12), "--lab-world", lab.lab_world,
         "--lab-flight-config", lab.lab_flight_config, "--lab-layouts", str(lab.lab_layouts),
-        "--init-model", recipe.init_model,
     ]))
     assert recipe.name == "privileged-lab"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert (recipe.lab_world, recipe.lab_flight_config, recipe.lab_layouts) == (
         "lab01-free", "config/flight.yaml", 200)
-    h6p12 = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_H6P12)]))
-    assert (REPO / recipe.init_model).read_bytes() == (REPO / h6p12.init_model).read_bytes()
+    assert (REPO / recipe.init_model).resolve() == PGUD_MODEL.resolve()
+
+
+def test_shipped_recipe_file_is_the_privileged_lab_recipe_s_seed_0() -> None:
+    """recipes/shipped.yaml (the bundled model's keys) is recipes/privileged-lab.yaml at seed 0, so
+    the recipe the docs call the bundled model's is the one it was trained with."""
+    shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
+    assert shipped == cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB), "--seed", "0"]))
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
