@@ -29,6 +29,7 @@ PRIVILEGED = REPO / "recipes" / "privileged.yaml"
 PRIVILEGED_H6 = REPO / "recipes" / "privileged-h6.yaml"
 PRIVILEGED_H6P12 = REPO / "recipes" / "privileged-h6p12.yaml"
 PRIVILEGED_LAB = REPO / "recipes" / "privileged-lab.yaml"
+PRIVILEGED_LAB_HINGE = REPO / "recipes" / "privileged-lab-hinge.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -132,11 +133,21 @@ def test_privileged_lab_recipe_is_the_twelve_position_recipe_with_the_lab_s_layo
     assert (REPO / recipe.init_model).resolve() == PGUD_MODEL.resolve()
 
 
-def test_shipped_recipe_file_is_the_privileged_lab_recipe_s_seed_0() -> None:
-    """recipes/shipped.yaml (the bundled model's keys) is recipes/privileged-lab.yaml at seed 0, so
-    the recipe the docs call the bundled model's is the one it was trained with."""
+def test_privileged_lab_hinge_recipe_is_the_lab_recipe_with_the_hinge() -> None:
+    """recipes/privileged-lab-hinge.yaml is recipes/privileged-lab.yaml with ``--imitation-veto-weight
+    1`` (the command its figures were measured with), under its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB), "--imitation-veto-weight", "1"]))
+    assert recipe.name == "privileged-lab-hinge"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert recipe.imitation_veto_weight == 1.0 and recipe.imitation_teacher == "privileged"
+
+
+def test_shipped_recipe_file_is_the_privileged_lab_hinge_recipe_s_seed_0() -> None:
+    """recipes/shipped.yaml (the bundled model's keys) is recipes/privileged-lab-hinge.yaml at seed
+    0, so the recipe the docs call the bundled model's is the one it was trained with."""
     shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
-    assert shipped == cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB), "--seed", "0"]))
+    assert shipped == cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE), "--seed", "0"]))
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
