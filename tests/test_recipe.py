@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -202,3 +203,20 @@ def test_train_command_exits_2_on_a_bad_recipe(tmp_path: Path, capsys: pytest.Ca
     assert cmd_train.run(args) == 2
     assert "episodez" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize(
+    ("name", "scale"), [("default.eval.json", 1.0), ("default.eval.flight-scale.json", 0.5)]
+)
+def test_the_committed_eval_files_are_the_bundled_model_s(name: str, scale: float) -> None:
+    """quadnav_onboard/models/default.eval*.json (the docs' headline flights with the filter, eval
+    seed 0) were flown by the default.pt that is bundled now, at their scale, and their summary
+    counts their rows: a new model without new eval files fails here."""
+    data = json.loads((DEFAULT_MODEL_PATH.parent / name).read_text())
+    assert data["model_sha256"] == load_checkpoint(DEFAULT_MODEL_PATH).sha256
+    assert (data["primitive_scale_m"], data["trials"], data["seed"], data["shield"]["enabled"]) == (
+        scale, 10, 0, True)
+    rows = data["rows"]
+    assert len(rows) == data["summary"]["trials"] == 100
+    assert sum(r["outcome"] == "goal" for r in rows) == data["summary"]["goal"]
+    assert sum(r["crash"] == "N" for r in rows) == data["summary"]["collision_free"]
