@@ -44,7 +44,10 @@ What `quadnav-onboard --config FILE` flies (`config/flight.yaml` is the paper's 
 TRAIN_INTRO = """\
 What `quadnav-sim train` trains: every key is also a flag (`--episodes 2000`), and a recipe file
 (`quadnav-sim train --recipe recipes/paper.yaml`, see docs/training.md) holds any of these keys.
-The defaults are the paper's recipe; each run directory's `config.json` holds every key."""
+One more key, `base: OTHER.yaml` (a path relative to the file), starts from every key of another
+recipe file, the file's own keys overriding them (`recipes/privileged-lab-hinge.yaml` is
+`recipes/privileged-lab.yaml` and one key). The defaults are the paper's recipe; each run
+directory's `config.json` holds every key, bases resolved."""
 
 
 def document() -> str:

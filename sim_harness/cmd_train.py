@@ -4,6 +4,11 @@
 flags given beside it override its keys. Keys map onto TrainConfig by field name, so a field added
 to TrainConfig is a recipe key at once; an unknown key, a wrong type or a value out of range is
 refused naming the file, the key and the value.
+
+One key is not a field: ``base: OTHER.yaml`` takes every key of another recipe file (a path relative
+to the file that names it), the file's own keys overriding them. A recipe that changes one thing of
+another is then that one key, not a copy that could drift from it. Bases may chain; a missing base
+file or a loop is refused naming the files.
 """
 
 from __future__ import annotations
@@ -44,8 +49,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def load_recipe(path: str | Path) -> dict[str, Any]:
-    """A recipe file's keys, validated as a whole TrainConfig (errors name the file, key and value)."""
+BASE_KEY = "base"
+"""The recipe key naming another recipe file whose keys this one starts from."""
+
+MAX_BASE_DEPTH = 16
+"""Longest chain of ``base`` files followed before the chain is refused."""
+
+
+def _recipe_keys(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """``path``'s keys over those of its ``base`` chain, each file of the chain validated as a whole
+    TrainConfig under its own name (a bad key in a base is reported in the base)."""
     from sim_harness.rl.config import load_train_config
 
     data = load_yaml_mapping(path)
@@ -54,8 +67,30 @@ def load_recipe(path: str | Path) -> dict[str, Any]:
     bad = [k for k in data if not isinstance(k, str)]
     if bad:
         raise ConfigError(f"{path}: key {bad[0]!r}: keys are TrainConfig field names (strings)")
+    if BASE_KEY in data:
+        base = data.pop(BASE_KEY)
+        if not isinstance(base, str) or not base.strip():
+            raise ConfigError(
+                f"{path}: key {BASE_KEY!r}: bad value {base!r}: the path of another recipe file"
+            )
+        base_path = (path.parent / base).resolve()
+        here = (*chain, path.resolve())
+        if base_path in here:
+            loop = " -> ".join(str(p) for p in (*here, base_path))
+            raise ConfigError(f"{path}: key {BASE_KEY!r}: {base!r} closes a loop of recipe files: {loop}")
+        if len(here) >= MAX_BASE_DEPTH:
+            raise ConfigError(f"{path}: key {BASE_KEY!r}: more than {MAX_BASE_DEPTH} recipe files chained")
+        if not base_path.is_file():
+            raise ConfigError(f"{path}: key {BASE_KEY!r}: {base!r}: no such recipe file ({base_path})")
+        data = {**_recipe_keys(base_path, here), **data}
     load_train_config(data, source=str(path))
     return data
+
+
+def load_recipe(path: str | Path) -> dict[str, Any]:
+    """A recipe file's keys, its ``base`` chain resolved, validated as a whole TrainConfig (errors
+    name the file, key and value)."""
+    return _recipe_keys(Path(path))
 
 
 def config_for(args: argparse.Namespace) -> TrainConfig:

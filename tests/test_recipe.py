@@ -205,6 +205,56 @@ def test_train_command_exits_2_on_a_bad_recipe(tmp_path: Path, capsys: pytest.Ca
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_base_recipe_s_keys_are_taken_and_the_file_s_own_keys_win(tmp_path: Path) -> None:
+    """``base: FILE`` (relative to the naming file, not the working directory) takes every key of
+    FILE; the naming file's keys override them; chains resolve in order."""
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "root.yaml").write_text("name: root\nepisodes: 50\nn_step: 3\n", encoding="utf-8")
+    (tmp_path / "sub" / "mid.yaml").write_text("base: root.yaml\nname: mid\nn_step: 2\n", encoding="utf-8")
+    (tmp_path / "leaf.yaml").write_text("base: sub/mid.yaml\nseed: 7\n", encoding="utf-8")
+    cfg = cmd_train.config_for(_parse(["--recipe", str(tmp_path / "leaf.yaml"), "--episodes", "9"]))
+    assert (cfg.name, cfg.episodes, cfg.n_step, cfg.seed) == ("mid", 9, 2, 7)
+    keys = cmd_train.load_recipe(tmp_path / "leaf.yaml")
+    assert keys == {"name": "mid", "episodes": 50, "n_step": 2, "seed": 7}
+
+
+@pytest.mark.parametrize(
+    ("files", "words"),
+    [
+        ({"a.yaml": "base: missing.yaml\n"}, ["a.yaml", "key 'base'", "missing.yaml", "no such recipe file"]),
+        ({"a.yaml": "base: b.yaml\n", "b.yaml": "base: a.yaml\n"}, ["key 'base'", "loop", "b.yaml"]),
+        ({"a.yaml": "base: a.yaml\n"}, ["key 'base'", "loop"]),
+        ({"a.yaml": "base: 3\n"}, ["a.yaml", "key 'base'", "bad value 3"]),
+        ({"a.yaml": "base: ''\n"}, ["a.yaml", "key 'base'", "bad value"]),
+        ({"a.yaml": "base: b.yaml\nseed: 1\n", "b.yaml": "episodez: 5\n"}, ["b.yaml", "key 'episodez'"]),
+        ({"a.yaml": "base: b.yaml\n", "b.yaml": "- episodes\n"}, ["b.yaml", "expected a mapping"]),
+    ],
+)
+def test_a_bad_base_is_refused_naming_the_file_that_is_wrong(
+    tmp_path: Path, files: dict[str, str], words: list[str]
+) -> None:
+    """A missing base, a loop of bases, a base that is not a path, or a bad key inside a base:
+    ConfigError naming the file where the fault is, the key and the value."""
+    for name, text in files.items():
+        (tmp_path / name).write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as err:
+        cmd_train.config_for(_parse(["--recipe", str(tmp_path / "a.yaml")]))
+    message = str(err.value)
+    for word in words:
+        assert word.lower() in message.lower(), message
+
+
+def test_a_chain_of_bases_longer_than_the_limit_is_refused(tmp_path: Path) -> None:
+    """Bases chain at most ``MAX_BASE_DEPTH`` files deep; one more is refused, naming the limit."""
+    n = cmd_train.MAX_BASE_DEPTH + 1
+    for i in range(n):
+        text = f"base: r{i + 1}.yaml\n" if i < n - 1 else "episodes: 5\n"
+        (tmp_path / f"r{i}.yaml").write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=f"more than {cmd_train.MAX_BASE_DEPTH}"):
+        cmd_train.load_recipe(tmp_path / "r0.yaml")
+    assert cmd_train.load_recipe(tmp_path / "r1.yaml") == {"episodes": 5}
+
+
 @pytest.mark.parametrize(
     ("name", "scale"), [("default.eval.json", 1.0), ("default.eval.flight-scale.json", 0.5)]
 )
