@@ -31,6 +31,7 @@ PRIVILEGED_H6 = REPO / "recipes" / "privileged-h6.yaml"
 PRIVILEGED_H6P12 = REPO / "recipes" / "privileged-h6p12.yaml"
 PRIVILEGED_LAB = REPO / "recipes" / "privileged-lab.yaml"
 PRIVILEGED_LAB_HINGE = REPO / "recipes" / "privileged-lab-hinge.yaml"
+PRIVILEGED_LAB_HINGE3 = REPO / "recipes" / "privileged-lab-hinge3.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -142,6 +143,18 @@ def test_privileged_lab_hinge_recipe_is_the_lab_recipe_with_the_hinge() -> None:
     assert recipe.name == "privileged-lab-hinge"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert recipe.imitation_veto_weight == 1.0 and recipe.imitation_teacher == "privileged"
+
+
+def test_privileged_lab_hinge3_recipe_is_the_hinge_recipe_at_weight_3() -> None:
+    """recipes/privileged-lab-hinge3.yaml is recipes/privileged-lab-hinge.yaml with
+    ``--imitation-veto-weight 3`` (the command its seeds were first trained with), under its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE3)]))
+    flags = cmd_train.config_for(
+        _parse(["--recipe", str(PRIVILEGED_LAB_HINGE), "--imitation-veto-weight", "3"])
+    )
+    assert recipe.name == "privileged-lab-hinge3"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert recipe.imitation_veto_weight == 3.0 and recipe.lab_layouts == 200
 
 
 def test_shipped_recipe_file_is_the_privileged_lab_hinge_recipe_s_seed_0() -> None:
