@@ -28,6 +28,9 @@ __all__ = ["DEFAULT_MODEL_PATH", "Policy", "masked_argmax"]
 DEFAULT_MODEL_PATH = Path(__file__).resolve().parent / "models" / "default.pt"
 """The shipped checkpoint the daemon and ``quadnav-sim eval`` load by default."""
 
+PGUD_MODEL_PATH = DEFAULT_MODEL_PATH.with_name("pgud.pt")
+"""The bundled model until 0.5.0, kept as the imitation recipes' ``init_model`` (recipes/pgud.yaml)."""
+
 
 def masked_argmax(q: ArrayLike, allowed: ArrayLike | None) -> NDArray[np.int64]:
     """Arg-max over the last axis among the ``allowed`` actions (same shape as ``q``, bool); a row

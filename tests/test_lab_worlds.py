@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from quadnav_onboard.daemon.config import dry_run_config, flies_hardware, load_flight_config
-from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH, PGUD_MODEL_PATH, Policy
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.collision import clearance_m
@@ -22,7 +22,6 @@ from sim_harness.world import WorldError, load_world, parse_world, resolve_world
 
 REPO = Path(__file__).resolve().parents[1]
 FLIGHT = REPO / "config" / "flight.yaml"
-PGUD_MODEL_PATH = REPO / "quadnav_onboard" / "models" / "pgud.pt"
 ROOM = {
     "name": "room",
     "path": {"waypoints": [[0, 0, 1.2], [2, 2, 1.2]]},

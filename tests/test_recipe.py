@@ -14,7 +14,7 @@ import pytest
 
 from quadnav_onboard.checkpoint import load_checkpoint
 from quadnav_onboard.config import ConfigError
-from quadnav_onboard.policy import DEFAULT_MODEL_PATH
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH, PGUD_MODEL_PATH
 from sim_harness import cmd_train
 from sim_harness.rl.config import TrainConfig, load_train_config
 
@@ -22,7 +22,6 @@ REPO = Path(__file__).resolve().parent.parent
 PAPER = REPO / "recipes" / "paper.yaml"
 SHIPPED = REPO / "recipes" / "shipped.yaml"
 PGUD = REPO / "recipes" / "pgud.yaml"
-PGUD_MODEL = REPO / "quadnav_onboard" / "models" / "pgud.pt"
 FILTER_TEACHER = REPO / "recipes" / "filter-teacher.yaml"
 FILTER_TEACHER_H6 = REPO / "recipes" / "filter-teacher-h6.yaml"
 FILTER_TEACHER_H6P12 = REPO / "recipes" / "filter-teacher-h6p12.yaml"
@@ -46,7 +45,7 @@ def test_paper_recipe_file_is_the_code_s_paper_recipe() -> None:
     assert cmd_train.config_for(_parse(["--recipe", str(PAPER)])) == TrainConfig()
 
 
-@pytest.mark.parametrize(("recipe", "model"), [(SHIPPED, DEFAULT_MODEL_PATH), (PGUD, PGUD_MODEL)])
+@pytest.mark.parametrize(("recipe", "model"), [(SHIPPED, DEFAULT_MODEL_PATH), (PGUD, PGUD_MODEL_PATH)])
 def test_a_bundled_model_s_recipe_file_is_what_it_was_trained_with(recipe: Path, model: Path) -> None:
     """recipes/shipped.yaml (default.pt) and recipes/pgud.yaml (pgud.pt) each equal the TrainConfig
     in their model's meta (keys added to TrainConfig since then at their defaults), and differ from
@@ -93,7 +92,7 @@ def test_privileged_recipe_is_the_filter_teacher_recipe_with_the_privileged_teac
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert (recipe.imitation_teacher, recipe.dagger_filtered_share, recipe.dagger_iterations) == (
         "privileged", 0.5, 15)
-    assert (REPO / recipe.init_model).resolve() == PGUD_MODEL.resolve()
+    assert (REPO / recipe.init_model).resolve() == PGUD_MODEL_PATH.resolve()
 
 
 def test_privileged_six_frame_recipe_is_the_privileged_recipe_with_its_two_flags() -> None:
@@ -132,7 +131,7 @@ def test_privileged_lab_recipe_is_the_twelve_position_recipe_with_the_lab_s_layo
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert (recipe.lab_world, recipe.lab_flight_config, recipe.lab_layouts) == (
         "lab01-free", "config/flight.yaml", 200)
-    assert (REPO / recipe.init_model).resolve() == PGUD_MODEL.resolve()
+    assert (REPO / recipe.init_model).resolve() == PGUD_MODEL_PATH.resolve()
 
 
 def test_privileged_lab_hinge_recipe_is_the_lab_recipe_with_the_hinge() -> None:
