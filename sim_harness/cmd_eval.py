@@ -31,6 +31,7 @@ __all__ = [
     "run",
     "seed_arg",
     "shield_from_flags",
+    "shown_path",
     "sim_env_config",
     "worlds_from_flags",
 ]
@@ -173,6 +174,18 @@ def load_flights(
     except (CheckpointError, WorldError, ConfigError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return None
+
+
+def shown_path(source: Path | str) -> str:
+    """A model or world as an eval file names it: a path under the working directory relative to
+    it (run from the repository root, the same on every machine), any other path as it is, a
+    label (a generated world) unchanged."""
+    if not isinstance(source, Path):
+        return source
+    try:
+        return source.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return str(source)
 
 
 def _layouts(env_cfg: EnvConfig, rooms: list[World], limits: FlightLimits, n: int, seed: int) -> list[World]:
@@ -380,7 +393,7 @@ def run(args: argparse.Namespace) -> int:
               f"{overrules.decisions} decisions ({overrules.rate:.1%})")
     if args.json:
         out = {
-            "model": str(model),
+            "model": shown_path(model),
             "model_sha256": policy.checkpoint.sha256,
             "trials": args.trials,
             "seed": args.seed,
@@ -393,7 +406,7 @@ def run(args: argparse.Namespace) -> int:
             "layout_seed": args.layout_seed if args.layouts is not None else None,
             "depth_noise": None if noise is None else dataclasses.asdict(noise),
             "known_rooms": True,
-            "worlds": [str(p) for p in paths],
+            "worlds": [shown_path(p) for p in paths],
             "rows": [r.to_dict() for r in rows],
             "summary": summary,
             "filter_overrules": overrules.to_dict() if overrules.decisions else None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from quadnav_onboard.checkpoint import save_checkpoint
 from quadnav_onboard.network import DQN, NetworkConfig
 from quadnav_onboard.shield import ShieldConfig
 from sim_harness.cli import main
+from sim_harness.cmd_eval import shown_path
 from sim_harness.env import EnvConfig
 from sim_harness.rl.evaluate import EvalRow, evaluate, format_table, summarize
 from sim_harness.world import parse_world
@@ -104,6 +106,19 @@ def test_eval_command_writes_json_rows_for_any_world_file(tmp_path, capsys) -> N
     assert len(data["rows"]) == 2 and data["rows"][0]["world"] == "mine"
     assert data["summary"]["trials"] == 2
     assert "success" in capsys.readouterr().out
+    assert (data["model"], data["worlds"]) == (str(model), [str(world)])  # outside the working dir
+
+
+def test_eval_files_name_paths_under_the_working_directory_relative_to_it(tmp_path, monkeypatch) -> None:
+    """Run from the repository root, an eval file names its model and worlds the same on every
+    machine; a path elsewhere stays whole, and a generated world's label is kept as it is."""
+    (tmp_path / "models").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert shown_path(tmp_path / "models" / "m.pt") == "models/m.pt"
+    assert shown_path(Path("models/m.pt")) == "models/m.pt"
+    elsewhere = tmp_path.parent / "other.pt"
+    assert shown_path(elsewhere) == str(elsewhere)
+    assert shown_path("<procgen procgen001 seed 4242>") == "<procgen procgen001 seed 4242>"
 
 
 def test_eval_command_reports_a_bad_world_without_a_traceback(tmp_path, capsys) -> None:

@@ -282,3 +282,6 @@ def test_the_committed_eval_files_are_the_bundled_model_s(name: str, scale: floa
     assert len(rows) == data["summary"]["trials"] == 100
     assert sum(r["outcome"] == "goal" for r in rows) == data["summary"]["goal"]
     assert sum(r["crash"] == "N" for r in rows) == data["summary"]["collision_free"]
+    # flown from the repository root: the files name the model and worlds as the checkout does
+    assert data["model"] == "quadnav_onboard/models/default.pt"
+    assert all(w.startswith("sim_harness/worlds/env") for w in data["worlds"])
