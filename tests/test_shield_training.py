@@ -241,6 +241,43 @@ def test_init_model_starts_from_its_weights_and_a_mismatch_fails_before_a_run_di
     assert not (tmp_path / "bad_runs").exists()
 
 
+def test_init_model_sha256_pins_the_start_and_a_changed_file_fails_before_a_run_directory(tmp_path):
+    """With ``init_model_sha256`` set, training starts only from a file with that hash; another
+    file under the same name is refused, naming the key, both hashes, before a run directory."""
+    from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+    from quadnav_onboard.config import ConfigError
+    from quadnav_onboard.network import DQN
+
+    torch.manual_seed(3)
+    start = save_checkpoint(tmp_path / "start.pt", DQN(NetworkConfig()))
+    sha = load_checkpoint(start).sha256
+    pinned = TrainConfig(name="pin", episodes=2, n_envs=2, max_steps=3, learning_starts=10_000,
+                         init_model=str(start), init_model_sha256=sha, out_dir=str(tmp_path / "runs"))
+    assert train(pinned, progress=False).model_path.exists()
+    torch.manual_seed(4)
+    save_checkpoint(start, DQN(NetworkConfig()))  # another model under the pinned name
+    changed = dataclasses.replace(pinned, out_dir=str(tmp_path / "changed_runs"))
+    with pytest.raises(ConfigError, match=rf"init_model_sha256.*{sha}.*has sha256 '(?!{sha})[0-9a-f]{{64}}'"):
+        train(changed, progress=False)
+    assert not (tmp_path / "changed_runs").exists()
+
+
+@pytest.mark.parametrize(
+    ("keys", "why"),
+    [
+        ({"init_model_sha256": "ab" * 32}, "set init_model"),
+        ({"init_model": "m.pt", "init_model_sha256": "AB" * 32}, "64 lowercase hex digits"),
+        ({"init_model": "m.pt", "init_model_sha256": "ab" * 31}, "64 lowercase hex digits"),
+    ],
+)
+def test_a_bad_init_model_sha256_is_refused_naming_file_key_and_value(keys: dict, why: str) -> None:
+    from quadnav_onboard.config import ConfigError
+    from sim_harness.rl.config import load_train_config
+
+    with pytest.raises(ConfigError, match=rf"recipe\.yaml: key 'init_model_sha256': bad value .*{why}"):
+        load_train_config(keys, "recipe.yaml")
+
+
 def _low_world(floor: bool) -> object:
     spec = {"name": "low", "path": {"waypoints": [[0, 0, 0.7], [12, 0, 0.7]]}}
     if floor:

@@ -243,6 +243,10 @@ class TrainConfig:
     histories may be longer: the older inputs then start at zero weight
     (sim_harness.rl.widen), so the network starts as the checkpoint's and, with the "filter"
     teacher, the expert is the checkpoint's network as it was."""
+    init_model_sha256: str = ""
+    """sha256 (64 hex digits) the ``init_model`` file must have: a recipe that starts from a file
+    that can change, such as the bundled model, then refuses to train from any other file under
+    that name. "" = not checked."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 100
     """Episodes between checkpoints (model + resumable training state). Range: [1, 10^7]."""
     keep_every: Annotated[int, pydantic.Field(ge=0, le=10_000_000)] = 0
@@ -273,6 +277,10 @@ class TrainConfig:
         return json.loads(json.dumps(dataclasses.asdict(self)))
 
 
+def _is_sha256(text: str) -> bool:
+    return len(text) == 64 and all(c in "0123456789abcdef" for c in text)
+
+
 def load_train_config(mapping: Any, source: str) -> TrainConfig:
     """Validate a mapping (e.g. a run's config.json) into a :class:`TrainConfig`."""
     cfg = parse_config(TrainConfig, mapping, source)
@@ -301,6 +309,9 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
             f"{source}: key 'imitation_teacher': bad value 'filter': the filter teacher is the "
             "init_model network behind the filter: set init_model and shield: true"
         )
+    if cfg.init_model_sha256 and not (cfg.init_model and _is_sha256(cfg.init_model_sha256)):
+        why = "set init_model" if not cfg.init_model else "a sha256 is 64 lowercase hex digits"
+        raise ConfigError(f"{source}: key 'init_model_sha256': bad value {cfg.init_model_sha256!r}: {why}")
     if cfg.dagger_filtered_share > 0 and not cfg.shield:
         raise ConfigError(
             f"{source}: key 'dagger_filtered_share': bad value {cfg.dagger_filtered_share!r}: "

@@ -167,6 +167,12 @@ def _init_checkpoint(cfg: TrainConfig) -> Checkpoint | None:
     if not cfg.init_model:
         return None
     init = load_checkpoint(cfg.init_model)
+    if cfg.init_model_sha256 and init.sha256 != cfg.init_model_sha256:
+        raise ConfigError(
+            f"key 'init_model_sha256': bad value {cfg.init_model_sha256!r}: init_model "
+            f"{cfg.init_model!r} has sha256 {init.sha256!r}; the file is not the one the recipe "
+            "starts from"
+        )
     if not can_widen(init.network, network_config_for(cfg)):
         raise ConfigError(
             f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
