@@ -31,6 +31,8 @@ PRIVILEGED_H6P12 = REPO / "recipes" / "privileged-h6p12.yaml"
 PRIVILEGED_LAB = REPO / "recipes" / "privileged-lab.yaml"
 PRIVILEGED_LAB_HINGE = REPO / "recipes" / "privileged-lab-hinge.yaml"
 PRIVILEGED_LAB_HINGE3 = REPO / "recipes" / "privileged-lab-hinge3.yaml"
+PRIVILEGED_LAB_HINGE3_ROUND2 = REPO / "recipes" / "privileged-lab-hinge3-round2.yaml"
+PRIVILEGED_LAB_HINGE3_ROUND2_F25 = REPO / "recipes" / "privileged-lab-hinge3-round2-f25.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -154,6 +156,33 @@ def test_privileged_lab_hinge3_recipe_is_the_hinge_recipe_at_weight_3() -> None:
     assert recipe.name == "privileged-lab-hinge3"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert recipe.imitation_veto_weight == 3.0 and recipe.lab_layouts == 200
+
+
+def test_second_round_recipe_is_the_weight_3_recipe_from_the_pinned_bundled_model() -> None:
+    """recipes/privileged-lab-hinge3-round2.yaml is recipes/privileged-lab-hinge3.yaml with
+    ``--init-model quadnav_onboard/models/default.pt --dagger-iterations 8`` (the command its seeds
+    were first trained with) under its own name, and pins the start's sha256 to a well-formed hash."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2)]))
+    flags = cmd_train.config_for(_parse([
+        "--recipe", str(PRIVILEGED_LAB_HINGE3), "--init-model", "quadnav_onboard/models/default.pt",
+        "--dagger-iterations", "8",
+    ]))
+    assert recipe.name == "privileged-lab-hinge3-round2"
+    assert dataclasses.replace(recipe, name=flags.name, init_model_sha256="") == flags
+    assert (REPO / recipe.init_model).resolve() == DEFAULT_MODEL_PATH.resolve()
+    assert len(recipe.init_model_sha256) == 64 and recipe.dagger_iterations == 8
+
+
+def test_second_round_quarter_recipe_is_the_second_round_with_a_quarter_behind_the_filter() -> None:
+    """recipes/privileged-lab-hinge3-round2-f25.yaml is the second round with
+    ``--dagger-filtered-share 0.25`` (the command its seeds were first trained with), its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2_F25)]))
+    flags = cmd_train.config_for(
+        _parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2), "--dagger-filtered-share", "0.25"])
+    )
+    assert recipe.name == "privileged-lab-hinge3-round2-f25"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert recipe.dagger_filtered_share == 0.25 and recipe.init_model_sha256 == flags.init_model_sha256
 
 
 def test_shipped_recipe_file_is_the_privileged_lab_hinge_recipe_s_seed_0() -> None:
