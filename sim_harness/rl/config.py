@@ -244,8 +244,8 @@ class TrainConfig:
     (sim_harness.rl.widen), so the network starts as the checkpoint's and, with the "filter"
     teacher, the expert is the checkpoint's network as it was."""
     init_model_sha256: str = ""
-    """sha256 (64 hex digits) the ``init_model`` file must have: a recipe that starts from a file
-    that can change, such as the bundled model, then refuses to train from any other file under
+    """sha256 (64 lowercase hex digits) the ``init_model`` file must have: a recipe that starts from a
+    file that can change, such as the bundled model, then refuses to train from any other file under
     that name. "" = not checked."""
     checkpoint_every: Annotated[int, pydantic.Field(ge=1, le=10_000_000)] = 100
     """Episodes between checkpoints (model + resumable training state). Range: [1, 10^7]."""
