@@ -161,7 +161,8 @@ def test_privileged_lab_hinge3_recipe_is_the_hinge_recipe_at_weight_3() -> None:
 def test_second_round_recipe_is_the_weight_3_recipe_from_the_pinned_bundled_model() -> None:
     """recipes/privileged-lab-hinge3-round2.yaml is recipes/privileged-lab-hinge3.yaml with
     ``--init-model quadnav_onboard/models/default.pt --dagger-iterations 8`` (the command its seeds
-    were first trained with) under its own name, and pins the start's sha256 to a well-formed hash."""
+    were first trained with) under its own name, and pins the start to the bundled model's sha256:
+    when default.pt changes, this fails until init_model names a kept copy of the old model."""
     recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2)]))
     flags = cmd_train.config_for(_parse([
         "--recipe", str(PRIVILEGED_LAB_HINGE3), "--init-model", "quadnav_onboard/models/default.pt",
@@ -170,7 +171,8 @@ def test_second_round_recipe_is_the_weight_3_recipe_from_the_pinned_bundled_mode
     assert recipe.name == "privileged-lab-hinge3-round2"
     assert dataclasses.replace(recipe, name=flags.name, init_model_sha256="") == flags
     assert (REPO / recipe.init_model).resolve() == DEFAULT_MODEL_PATH.resolve()
-    assert len(recipe.init_model_sha256) == 64 and recipe.dagger_iterations == 8
+    assert recipe.init_model_sha256 == load_checkpoint(REPO / recipe.init_model).sha256
+    assert recipe.dagger_iterations == 8
 
 
 def test_second_round_quarter_recipe_is_the_second_round_with_a_quarter_behind_the_filter() -> None:
