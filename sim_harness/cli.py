@@ -12,7 +12,7 @@ import sys
 
 __all__ = ["main"]
 
-SUBCOMMANDS = ("show", "bench", "train", "sweep", "eval", "route", "select", "serve", "ship")
+SUBCOMMANDS = ("show", "bench", "train", "sweep", "eval", "route", "select", "serve", "ship", "soup")
 
 
 def build_parser() -> argparse.ArgumentParser:
