@@ -110,6 +110,11 @@ def soup(paths: list[str]) -> tuple[Any, dict[str, Any], Any]:
 def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.checkpoint import CheckpointError, save_checkpoint
 
+    out_path = Path(args.out).resolve()
+    for path in args.models:
+        if Path(path).resolve() == out_path:
+            print(f"quadnav-sim soup: --out {args.out} is one of the checkpoints to average", file=sys.stderr)
+            return 2
     try:
         model, meta, first = soup(list(args.models))
     except (CheckpointError, SoupError) as exc:

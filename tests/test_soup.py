@@ -75,11 +75,16 @@ def _refused(capsys: pytest.CaptureFixture[str], tmp_path: Path, paths: list[str
     return capsys.readouterr().err
 
 
-def test_one_checkpoint_or_the_same_file_twice_is_refused(tmp_path, capsys) -> None:
+def test_one_checkpoint_the_same_file_twice_or_an_ingredient_as_out_is_refused(tmp_path, capsys) -> None:
     a = _ckpt(tmp_path / "a.pt", 0)
     assert "two or more checkpoints, got 1" in _refused(capsys, tmp_path, [a])
     err = _refused(capsys, tmp_path, [a, a])
     assert f"{a}: the same file as {a}" in err
+    b = _ckpt(tmp_path / "b.pt", 1)
+    before = Path(b).read_bytes()
+    assert main(["soup", a, b, "--out", b]) == 2
+    assert "is one of the checkpoints to average" in capsys.readouterr().err
+    assert Path(b).read_bytes() == before
 
 
 @pytest.mark.parametrize(
