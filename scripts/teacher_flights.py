@@ -26,11 +26,9 @@ from collections import Counter
 
 
 def main() -> int:
-    import numpy as np
-
     from sim_harness.cmd_eval import add_flights_flags, load_flights
     from sim_harness.rl.evaluate import evaluate, summarize
-    from sim_harness.rl.teacher import Teacher, TeacherConfig
+    from sim_harness.rl.teacher import Teacher, TeacherConfig, TeacherPilot
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_flights_flags(ap, shield_default="off", trials_default=10)
@@ -55,25 +53,10 @@ def main() -> int:
     _, flights = loaded
     teacher = Teacher(TeacherConfig(margin_m=args.margin_m, lookahead=args.lookahead,
                                     respect_filter=args.respect_filter))
-    current: list = [None]
-    vetoed = Counter()
-
-    def act(depth, rel, allowed):
-        env = current[0]
-        actions = np.zeros(env.n_envs, dtype=np.int64)
-        running = np.flatnonzero(~env.done)
-        if running.size:
-            actions[running] = teacher.labels(env, running)
-            if env.memory is not None:  # the filter runs: would it have vetoed the choice?
-                ok = allowed[running]
-                chosen = ok[np.arange(running.size), actions[running]]
-                vetoed["decisions"] += running.size
-                vetoed["vetoed"] += int((ok.any(axis=1) & ~chosen).sum())
-        return actions
-
-    rows = evaluate(act, flights.worlds, args.trials, args.seed, flights.env_config,
+    pilot = TeacherPilot(teacher)
+    rows = evaluate(pilot.act, flights.worlds, args.trials, args.seed, flights.env_config,
                     limits=flights.limits, depth_noise=flights.depth_noise,
-                    on_world_start=lambda _w, env: current.__setitem__(0, env))
+                    on_world_start=pilot.on_world_start)
     summary = summarize(rows)
     by_world: dict[str, Counter] = {}
     for r in rows:
@@ -82,13 +65,14 @@ def main() -> int:
         print(f"{world:28s} " + ", ".join(f"{k} {v}" for k, v in sorted(c.items())))
     print(f"trials {summary['trials']}: goal {summary['success_rate']:.1%}, "
           f"collision-free {summary['collision_free_rate']:.1%}")
-    if vetoed["decisions"]:
-        print(f"the filter would veto the teacher's choice in {vetoed['vetoed']} of "
-              f"{vetoed['decisions']} decisions")
+    if pilot.decisions:
+        print(f"the filter would veto the teacher's choice in {pilot.vetoed} of "
+              f"{pilot.decisions} decisions")
     if args.json:
         out = {"margin_m": args.margin_m, "lookahead": args.lookahead, "seed": args.seed,
                "trials": args.trials, "summary": summary, "respect_filter": args.respect_filter,
-               "filter_vetoes": dict(vetoed) if vetoed["decisions"] else None,
+               "filter_vetoes": ({"decisions": pilot.decisions, "vetoed": pilot.vetoed}
+                                 if pilot.decisions else None),
                "by_world": {w: dict(c) for w, c in by_world.items()},
                "rows": [r.to_dict() for r in rows]}
         with open(args.json, "w") as f:

@@ -10,6 +10,12 @@ flown greedily with the depth safety filter (``--shield on``: the checkpoint's s
 defaults for a checkpoint trained without it, which is how the shipped model flies).
 Ties go to the checkpoint listed first. The held-out Env 8–10 and the test worlds (procedural seed
 4242) are never flown here.
+
+With ``--teacher`` the privileged teacher (``sim_harness.rl.teacher``: a search over the primitives
+against the true world, two primitives deep, choosing among those the filter allows) flies the
+same flights in the first checkpoint's env, as a reference and never a candidate: what a planner
+that sees the whole world scores behind this filter with these primitives. Each checkpoint's
+misses are then also counted among the teacher's.
 """
 
 from __future__ import annotations
@@ -38,6 +44,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_flight_flags(p, shield_default="on")
     p.add_argument("--trials", type=int, default=10, help="trials per world and seed (default 10)")
     p.add_argument("--max-steps", type=int, default=120, help="step limit per flight (default 120)")
+    p.add_argument(
+        "--teacher",
+        action="store_true",
+        help="also fly the privileged teacher (it sees the true world, keeps to the filter's "
+        "verdicts) in the same flights, as a reference score; never chosen",
+    )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the scores as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -52,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from sim_harness.cmd_eval import at_flight_scale, shield_from_flags
     from sim_harness.procgen import procedural_worlds
     from sim_harness.rl.evaluate import env_config_for_policy, evaluate, policy_greedy_fn
+    from sim_harness.rl.teacher import Teacher, TeacherConfig, TeacherPilot
     from sim_harness.world import load_world, paper_world_path
 
     if args.trials < 1 or args.max_steps < 1:
@@ -67,31 +80,59 @@ def run(args: argparse.Namespace) -> int:
         ("train", [load_world(paper_world_path(i)) for i in range(1, 8)], (0, 1000)),
         ("dev", procedural_worlds(8, DEV_PROCEDURAL_SEED), (0, 1)),
     ]
-    scores = []
-    bar = tqdm(total=len(policies) * 4, desc="select", unit="set", disable=args.no_progress, file=sys.stderr)
-    for model, policy, shield in zip(args.models, policies, shields, strict=True):
-        env_cfg = env_config_for_policy(policy, max_steps=args.max_steps, shield=shield)
-        parts = {}
+    flights_per_model = sum(len(w) * len(seeds) for _, w, seeds in sets) * args.trials
+    bar = tqdm(total=(len(policies) + args.teacher) * flights_per_model, desc="select", unit="flight",
+               disable=args.no_progress, file=sys.stderr)
+
+    def fly(act, env_cfg, on_world_start=None) -> dict:
+        """Goals, crashes and the flights missed (``SET_seedS/WORLD/tTRIAL``) of one planner."""
+        parts, missed = {}, []
         for name, written, seeds in sets:
             env_cfg_s, worlds = at_flight_scale(env_cfg, written, args)
             for seed in seeds:
-                rows = evaluate(policy_greedy_fn(policy), worlds, args.trials, seed, env_cfg_s)
-                parts[f"{name}_seed{seed}"] = {
+                rows = evaluate(act, worlds, args.trials, seed, env_cfg_s, on_world_start=on_world_start,
+                                on_world_done=lambda _w: bar.update(args.trials))
+                part = f"{name}_seed{seed}"
+                parts[part] = {
                     "flights": len(rows),
                     "goals": sum(r.outcome == "goal" for r in rows),
                     "crashes": sum(r.outcome == "crash" for r in rows),
                 }
-                bar.update(1)
+                missed += [f"{part}/{r.world}/t{r.trial}" for r in rows if r.outcome != "goal"]
         goals = sum(p["goals"] for p in parts.values())
         crashes = sum(p["crashes"] for p in parts.values())
-        scores.append({"model": model, "score": goals - crashes, "goals": goals, "crashes": crashes, **parts})
+        return {"score": goals - crashes, "goals": goals, "crashes": crashes, **parts, "missed": missed}
+
+    scores = [
+        {"model": model, **fly(policy_greedy_fn(policy),
+                               env_config_for_policy(policy, max_steps=args.max_steps, shield=shield))}
+        for model, policy, shield in zip(args.models, policies, shields, strict=True)
+    ]
+    teacher = None
+    if args.teacher:
+        env_cfg = env_config_for_policy(policies[0], max_steps=args.max_steps, shield=shields[0])
+        pilot = TeacherPilot(Teacher(TeacherConfig(respect_filter=env_cfg.shield.enabled)))
+        teacher = {"respects_filter": env_cfg.shield.enabled, "env_of": args.models[0],
+                   **fly(pilot.act, env_cfg, pilot.on_world_start)}
+        for s in scores:
+            s["missed_by_teacher_too"] = len(set(s["missed"]) & set(teacher["missed"]))
     bar.close()
     best = max(range(len(scores)), key=lambda i: (scores[i]["score"], -i))
-    width = max(len(s["model"]) for s in scores)
-    print(f"{'checkpoint':<{width}}  score  goals  crashes  (of {sum(p['flights'] for p in parts.values())})")
+    label = "the privileged teacher (a reference)"
+    width = max([len(s["model"]) for s in scores] + ([len(label)] if teacher else []))
+    extra = "  missed  also the teacher's" if teacher else ""
+    print(f"{'checkpoint':<{width}}  score  goals  crashes  (of {flights_per_model}){extra}")
     for i, s in enumerate(scores):
-        mark = "  <- chosen" if i == best else ""
-        print(f"{s['model']:<{width}}  {s['score']:5d}  {s['goals']:5d}  {s['crashes']:7d}{mark}")
+        row = f"{s['model']:<{width}}  {s['score']:5d}  {s['goals']:5d}  {s['crashes']:7d}"
+        if teacher:
+            row += f"  {' ' * 9}{len(s['missed']):6d}  {s['missed_by_teacher_too']:16d}"
+        print(row + ("  <- chosen" if i == best else ""))
+    if teacher:
+        print(f"{label:<{width}}  {teacher['score']:5d}  {teacher['goals']:5d}  {teacher['crashes']:7d}"
+              f"  {' ' * 9}{len(teacher['missed']):6d}")
+        kept = "keeping to the filter's verdicts" if teacher["respects_filter"] else "with no filter"
+        print(f"(the teacher plans against the true world, {kept}, in the env of {teacher['env_of']}; "
+              "it is never chosen)")
     if args.json:
         out = {
             "rule": "goals - crashes; train Env 1-7 seeds 0/1000 + dev procgen 777 seeds 0/1",
@@ -102,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
             "chosen": scores[best]["model"],
             "scores": scores,
         }
+        if teacher:
+            out["teacher"] = teacher
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=2), encoding="utf-8")
         print(f"wrote {args.json}")

@@ -30,5 +30,31 @@ def test_select_scores_goals_minus_crashes_on_train_and_dev_sets_only(tmp_path, 
     best = max(s["score"] for s in data["scores"])
     assert data["chosen"] == next(s["model"] for s in data["scores"] if s["score"] == best)
     assert "<- chosen" in capsys.readouterr().out
+    assert "teacher" not in data and "missed_by_teacher_too" not in data["scores"][0]
     assert main(["select", str(tmp_path / "missing.pt"), "--no-progress"]) == 2
     assert "missing.pt" in capsys.readouterr().err
+
+
+def test_select_flies_the_privileged_teacher_in_the_same_flights_as_a_reference(tmp_path, capsys):
+    """--teacher: the teacher flies the rule's flights behind the first checkpoint's filter; its
+    score is reported beside the candidates', it is never chosen, and each candidate's misses are
+    counted among the teacher's."""
+    hover = tmp_path / "hover.pt"
+    constant_action_checkpoint(str(hover), 13)
+    out = tmp_path / "sel.json"
+    argv = ["select", str(hover), "--trials", "1", "--max-steps", "75", "--teacher", "--no-progress"]
+    assert main([*argv, "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    teacher, (only,) = data["teacher"], data["scores"]
+    assert teacher["respects_filter"] is True and teacher["env_of"] == str(hover)
+    parts = {k: v for k, v in teacher.items() if isinstance(v, dict)}
+    assert {k: v["flights"] for k, v in parts.items()} == {
+        "train_seed0": 7, "train_seed1000": 7, "dev_seed0": 8, "dev_seed1": 8,
+    }
+    assert teacher["goals"] == sum(p["goals"] for p in parts.values())
+    assert teacher["score"] == teacher["goals"] - teacher["crashes"]
+    assert len(teacher["missed"]) == 30 - teacher["goals"]
+    assert teacher["goals"] > only["goals"] == 0  # the teacher plans; the hovering checkpoint never arrives
+    assert data["chosen"] == str(hover)  # the reference is never a candidate
+    assert len(only["missed"]) == 30 and only["missed_by_teacher_too"] == len(teacher["missed"])
+    assert "the privileged teacher (a reference)" in capsys.readouterr().out

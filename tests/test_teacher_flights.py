@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "teacher_flights.py"
 
@@ -74,3 +75,11 @@ def test_respecting_the_filter_needs_it_on() -> None:
                          capture_output=True, text=True)
     assert run.returncode == 2
     assert "--respect-filter" in run.stderr and "--shield on" in run.stderr
+
+
+def test_the_teacher_pilot_refuses_to_act_before_it_is_handed_a_world_env() -> None:
+    from sim_harness.rl.teacher import Teacher, TeacherPilot
+
+    pilot = TeacherPilot(Teacher())
+    with pytest.raises(RuntimeError, match="on_world_start"):
+        pilot.act(np.zeros((1, 1, 32, 32)), np.zeros((1, 3)), np.ones((1, 18), dtype=bool))

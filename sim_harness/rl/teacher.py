@@ -47,8 +47,8 @@ if TYPE_CHECKING:
     from sim_harness.rl.config import TrainConfig
 
 __all__ = [
-    "CostField", "Teacher", "TeacherConfig", "cost_field", "soft_targets", "teacher_config",
-    "vetoed_as_crashes",
+    "CostField", "Teacher", "TeacherConfig", "TeacherPilot", "cost_field", "soft_targets",
+    "teacher_config", "vetoed_as_crashes",
 ]
 
 UNREACHABLE = 1.0e4
@@ -345,3 +345,36 @@ def teacher_for(worlds: Sequence[World], radius_m: float, config: TeacherConfig)
     for w in worlds:
         t.field(w, radius_m)
     return t
+
+
+class TeacherPilot:
+    """The teacher flying an eval's flights in place of a network: pass :meth:`act` and
+    :meth:`on_world_start` to :func:`sim_harness.rl.evaluate.evaluate` (the teacher reads each
+    world's env, not the depth images). Counts the decisions whose primitive the env's filter
+    would have vetoed (none when the teacher respects the filter, unless it vetoes all)."""
+
+    def __init__(self, teacher: Teacher) -> None:
+        self.teacher = teacher
+        self.env = None
+        self.decisions = 0
+        """Decisions taken with the env's filter on."""
+        self.vetoed = 0
+        """Of those, decisions whose primitive the filter vetoed while allowing another."""
+
+    def on_world_start(self, _world: World, env) -> None:
+        self.env = env
+
+    def act(self, depth: NDArray, rel: NDArray, allowed: NDArray[np.bool_]) -> NDArray[np.int64]:
+        env = self.env
+        if env is None:
+            raise RuntimeError("TeacherPilot.act before on_world_start: pass both to evaluate()")
+        actions = np.zeros(env.n_envs, dtype=np.int64)
+        running = np.flatnonzero(~env.done)
+        if running.size:
+            actions[running] = self.teacher.labels(env, running)
+            if env.memory is not None:
+                ok = np.asarray(allowed)[running]
+                chosen = ok[np.arange(running.size), actions[running]]
+                self.decisions += running.size
+                self.vetoed += int((ok.any(axis=1) & ~chosen).sum())
+        return actions
