@@ -16,11 +16,15 @@ against the true world, two primitives deep, choosing among those the filter all
 same flights in the first checkpoint's env, as a reference and never a candidate: what a planner
 that sees the whole world scores behind this filter with these primitives. Each checkpoint's
 misses are then also counted among the teacher's.
+
+With ``--alone`` each checkpoint also flies the same flights without its filter: how its network
+plans on its own, beside the rule's score and never used to choose.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -49,6 +53,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also fly the privileged teacher (it sees the true world, keeps to the filter's "
         "verdicts) in the same flights, as a reference score; never chosen",
+    )
+    p.add_argument(
+        "--alone",
+        action="store_true",
+        help="also fly each checkpoint without its filter in the same flights (its score alone, "
+        "shown beside the rule's; never used to choose)",
     )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the scores as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -81,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
         ("dev", procedural_worlds(8, DEV_PROCEDURAL_SEED), (0, 1)),
     ]
     flights_per_model = sum(len(w) * len(seeds) for _, w, seeds in sets) * args.trials
-    bar = tqdm(total=(len(policies) + args.teacher) * flights_per_model, desc="select", unit="flight",
+    planners = len(policies) * (1 + args.alone) + args.teacher
+    bar = tqdm(total=planners * flights_per_model, desc="select", unit="flight",
                disable=args.no_progress, file=sys.stderr)
 
     def fly(act, env_cfg, on_world_start=None) -> dict:
@@ -108,6 +119,11 @@ def run(args: argparse.Namespace) -> int:
                                env_config_for_policy(policy, max_steps=args.max_steps, shield=shield))}
         for model, policy, shield in zip(args.models, policies, shields, strict=True)
     ]
+    if args.alone:
+        for s, policy, shield in zip(scores, policies, shields, strict=True):
+            off = env_config_for_policy(policy, max_steps=args.max_steps,
+                                        shield=dataclasses.replace(shield, enabled=False))
+            s["alone"] = fly(policy_greedy_fn(policy), off)
     teacher = None
     if args.teacher:
         env_cfg = env_config_for_policy(policies[0], max_steps=args.max_steps, shield=shields[0])
@@ -120,16 +136,21 @@ def run(args: argparse.Namespace) -> int:
     best = max(range(len(scores)), key=lambda i: (scores[i]["score"], -i))
     label = "the privileged teacher (a reference)"
     width = max([len(s["model"]) for s in scores] + ([len(label)] if teacher else []))
-    extra = "  missed  also the teacher's" if teacher else ""
-    print(f"{'checkpoint':<{width}}  score  goals  crashes  (of {flights_per_model}){extra}")
+    header = f"{'checkpoint':<{width}}  score  goals  crashes"
+    header += "  missed  also the teacher's" if teacher else ""
+    header += "  alone: score  goals  crashes" if args.alone else ""
+    print(f"{header}  (of {flights_per_model} flights)")
     for i, s in enumerate(scores):
         row = f"{s['model']:<{width}}  {s['score']:5d}  {s['goals']:5d}  {s['crashes']:7d}"
         if teacher:
-            row += f"  {' ' * 9}{len(s['missed']):6d}  {s['missed_by_teacher_too']:16d}"
+            row += f"  {len(s['missed']):6d}  {s['missed_by_teacher_too']:18d}"
+        if args.alone:
+            a = s["alone"]
+            row += f"  {a['score']:12d}  {a['goals']:5d}  {a['crashes']:7d}"
         print(row + ("  <- chosen" if i == best else ""))
     if teacher:
         print(f"{label:<{width}}  {teacher['score']:5d}  {teacher['goals']:5d}  {teacher['crashes']:7d}"
-              f"  {' ' * 9}{len(teacher['missed']):6d}")
+              f"  {len(teacher['missed']):6d}")
         kept = "keeping to the filter's verdicts" if teacher["respects_filter"] else "with no filter"
         print(f"(the teacher plans against the true world, {kept}, in the env of {teacher['env_of']}; "
               "it is never chosen)")

@@ -58,3 +58,27 @@ def test_select_flies_the_privileged_teacher_in_the_same_flights_as_a_reference(
     assert data["chosen"] == str(hover)  # the reference is never a candidate
     assert len(only["missed"]) == 30 and only["missed_by_teacher_too"] == len(teacher["missed"])
     assert "the privileged teacher (a reference)" in capsys.readouterr().out
+
+
+def test_select_alone_flies_each_checkpoint_without_its_filter_beside_the_rule(tmp_path, capsys):
+    """--alone: each checkpoint also flies the rule's flights without its filter; those figures are
+    the ones ``--shield off`` gives, and the rule's scores and choice stay as they were."""
+    straight, hover = tmp_path / "straight.pt", tmp_path / "hover.pt"
+    constant_action_checkpoint(str(straight), 4)
+    constant_action_checkpoint(str(hover), 13)
+    base = ["select", str(straight), str(hover), "--trials", "1", "--max-steps", "30", "--no-progress"]
+    runs = {}
+    for name, extra in (("rule", []), ("alone", ["--alone"]), ("off", ["--shield", "off"])):
+        out = tmp_path / f"{name}.json"
+        assert main([*base, *extra, "--json", str(out)]) == 0
+        runs[name] = json.loads(out.read_text())
+    assert "alone: score" in capsys.readouterr().out
+    scored = zip(runs["alone"]["scores"], runs["rule"]["scores"], runs["off"]["scores"], strict=True)
+    for with_alone, rule, off in scored:
+        assert {k: v for k, v in with_alone.items() if k != "alone"} == rule  # the rule is untouched
+        assert with_alone["alone"] == {k: v for k, v in off.items() if k != "model"}
+        assert with_alone["alone"]["score"] == with_alone["alone"]["goals"] - with_alone["alone"]["crashes"]
+    assert runs["alone"]["chosen"] == runs["rule"]["chosen"]
+    # flying straight ahead, the filter's vetoes change the flights: the two figures differ
+    straight_rule = {k: v for k, v in runs["rule"]["scores"][0].items() if k != "model"}
+    assert runs["alone"]["scores"][0]["alone"] != straight_rule
