@@ -245,6 +245,29 @@ def test_trace_flight_script_replays_the_flight_eval_flew(flags, index, trial, t
         assert len(top) == 3 and all(len(x) == 4 and np.isfinite(x[2]) and np.isfinite(x[3]) for x in top)
 
 
+def test_trace_flight_script_lists_every_primitive_with_top_18() -> None:
+    """--top 18 lists all 18 primitives at each decision, each once, the flown one among them;
+    --top 0 is refused."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "trace_flight.py"
+    common = [sys.executable, str(script), "--world", "env04", "--max-steps", "6", "--trials", "2"]
+    lines = subprocess.run([*common, "--top", "18"], check=True, capture_output=True, text=True).stdout
+    steps = [line for line in lines.splitlines() if line[:3].strip().isdigit()]
+    assert steps
+    for line in steps:
+        assert "top 18 (" in line
+        listed = ast.literal_eval(line[line.rindex("[("):])
+        assert sorted(a for a, *_ in listed) == list(range(18))
+        flown = int(line.split(" flies ")[1].split()[0])
+        assert any(a == flown and allowed for a, allowed, *_ in listed)  # the filter allowed what flew
+    bad = subprocess.run([*common, "--top", "0"], capture_output=True, text=True, check=False)
+    assert bad.returncode == 2 and "--top: bad value 0" in bad.stderr
+
+
 def test_trace_flight_script_refuses_a_world_index_past_the_list() -> None:
     import subprocess
     import sys
