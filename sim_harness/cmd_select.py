@@ -8,8 +8,12 @@ The rule (the one ``docs/results.md`` uses to pick the shipped seed): score = go
 
 flown greedily with the depth safety filter (``--shield on``: the checkpoint's settings, the
 defaults for a checkpoint trained without it, which is how the shipped model flies).
-Ties go to the checkpoint listed first. The held-out Env 8–10 and the test worlds (procedural seed
-4242) are never flown here.
+Checkpoints tied at the top fly the same flights again without their filter, and the tie goes
+to the one that scores most so (goals − crashes alone): the filter's margins and the primitives
+cap what any planner can score with the filter, so ties at the top are common, and what the
+network plans on its own is what tells them apart. A tie that remains goes to the checkpoint
+listed first. With ``--shield off`` the rule is already flown alone, and ties go to the first
+listed. The held-out Env 8–10 and the test worlds (procedural seed 4242) are never flown here.
 
 With ``--teacher`` the privileged teacher (``sim_harness.rl.teacher``: a search over the primitives
 against the true world, two primitives deep, choosing among those the filter allows) flies the
@@ -17,8 +21,8 @@ same flights in the first checkpoint's env, as a reference and never a candidate
 that sees the whole world scores behind this filter with these primitives. Each checkpoint's
 misses are then also counted among the teacher's.
 
-With ``--alone`` each checkpoint also flies the same flights without its filter: how its network
-plans on its own, beside the rule's score and never used to choose.
+With ``--alone`` every checkpoint, not only those tied at the top, also flies the same flights
+without its filter, shown beside the rule's score; outside a tie at the top it does not choose.
 """
 
 from __future__ import annotations
@@ -57,8 +61,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--alone",
         action="store_true",
-        help="also fly each checkpoint without its filter in the same flights (its score alone, "
-        "shown beside the rule's; never used to choose)",
+        help="also fly every checkpoint without its filter in the same flights (its score alone, "
+        "shown beside the rule's; it chooses only among checkpoints tied at the top, which fly "
+        "alone without this flag too)",
     )
     p.add_argument("--json", default=None, metavar="OUT", help="also write the scores as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -119,11 +124,13 @@ def run(args: argparse.Namespace) -> int:
                                env_config_for_policy(policy, max_steps=args.max_steps, shield=shield))}
         for model, policy, shield in zip(args.models, policies, shields, strict=True)
     ]
+    def alone_env(policy, shield):
+        return env_config_for_policy(policy, max_steps=args.max_steps,
+                                     shield=dataclasses.replace(shield, enabled=False))
+
     if args.alone:
         for s, policy, shield in zip(scores, policies, shields, strict=True):
-            off = env_config_for_policy(policy, max_steps=args.max_steps,
-                                        shield=dataclasses.replace(shield, enabled=False))
-            s["alone"] = fly(policy_greedy_fn(policy), off)
+            s["alone"] = fly(policy_greedy_fn(policy), alone_env(policy, shield))
     teacher = None
     if args.teacher:
         env_cfg = env_config_for_policy(policies[0], max_steps=args.max_steps, shield=shields[0])
@@ -132,22 +139,38 @@ def run(args: argparse.Namespace) -> int:
                    **fly(pilot.act, env_cfg, pilot.on_world_start)}
         for s in scores:
             s["missed_by_teacher_too"] = len(set(s["missed"]) & set(teacher["missed"]))
+    top = max(s["score"] for s in scores)
+    tied = [i for i, s in enumerate(scores) if s["score"] == top]
+    tie_break = None
+    if len(tied) > 1 and all(shields[i].enabled for i in tied):
+        for i in tied:
+            if "alone" not in scores[i]:
+                bar.total += flights_per_model
+                bar.refresh()
+                scores[i]["alone"] = fly(policy_greedy_fn(policies[i]), alone_env(policies[i], shields[i]))
+        tie_break = {"by": "score alone (goals - crashes without the filter)",
+                     "tied": [scores[i]["model"] for i in tied]}
     bar.close()
-    best = max(range(len(scores)), key=lambda i: (scores[i]["score"], -i))
+    best = tied[0] if tie_break is None else max(tied, key=lambda i: (scores[i]["alone"]["score"], -i))
     label = "the privileged teacher (a reference)"
     width = max([len(s["model"]) for s in scores] + ([len(label)] if teacher else []))
     header = f"{'checkpoint':<{width}}  score  goals  crashes"
     header += "  missed  also the teacher's" if teacher else ""
-    header += "  alone: score  goals  crashes" if args.alone else ""
+    shown_alone = any("alone" in s for s in scores)
+    header += "  alone: score  goals  crashes" if shown_alone else ""
     print(f"{header}  (of {flights_per_model} flights)")
     for i, s in enumerate(scores):
         row = f"{s['model']:<{width}}  {s['score']:5d}  {s['goals']:5d}  {s['crashes']:7d}"
         if teacher:
             row += f"  {len(s['missed']):6d}  {s['missed_by_teacher_too']:18d}"
-        if args.alone:
+        if "alone" in s:
             a = s["alone"]
             row += f"  {a['score']:12d}  {a['goals']:5d}  {a['crashes']:7d}"
+        elif shown_alone:
+            row += f"  {'-':>12}  {'-':>5}  {'-':>7}"
         print(row + ("  <- chosen" if i == best else ""))
+    if tie_break:
+        print(f"({len(tied)} checkpoints tied at {top}; the tie went to the best score without the filter)")
     if teacher:
         print(f"{label:<{width}}  {teacher['score']:5d}  {teacher['goals']:5d}  {teacher['crashes']:7d}"
               f"  {len(teacher['missed']):6d}")
@@ -156,12 +179,14 @@ def run(args: argparse.Namespace) -> int:
               "it is never chosen)")
     if args.json:
         out = {
-            "rule": "goals - crashes; train Env 1-7 seeds 0/1000 + dev procgen 777 seeds 0/1",
+            "rule": "goals - crashes; train Env 1-7 seeds 0/1000 + dev procgen 777 seeds 0/1; "
+                    "ties at the top by the same alone, then first listed",
             "shield": args.shield,
             "shield_set": args.shield_set,
             "primitive_scale_m": args.primitive_scale,
             "trials": args.trials,
             "chosen": scores[best]["model"],
+            "tie_break": tie_break,
             "scores": scores,
         }
         if teacher:

@@ -10,25 +10,31 @@ from sim_harness.cli import main
 
 def test_select_scores_goals_minus_crashes_on_train_and_dev_sets_only(tmp_path, capsys):
     """Each checkpoint flies Env 1-7 at two seeds and 8 development worlds at two seeds; the score is
-    goals minus crashes; a tie goes to the checkpoint listed first; a bad one is a clear error."""
+    goals minus crashes; checkpoints tied at the top fly the same flights alone, and the tie goes to
+    the best score alone, then to the one listed first; a bad one is a clear error."""
     straight, hover, twin = tmp_path / "straight.pt", tmp_path / "hover.pt", tmp_path / "twin.pt"
     constant_action_checkpoint(str(straight), 4)
     constant_action_checkpoint(str(hover), 13)
-    twin.write_bytes(straight.read_bytes())
+    twin.write_bytes(hover.read_bytes())
     out = tmp_path / "sel.json"
     argv = ["select", str(straight), str(hover), str(twin), "--trials", "1", "--max-steps", "30"]
     argv.append("--no-progress")
     assert main([*argv, "--json", str(out)]) == 0
     data = json.loads(out.read_text())
-    flights = {k: v["flights"] for k, v in data["scores"][0].items() if isinstance(v, dict)}
+    flights = {k: v["flights"] for k, v in data["scores"][0].items() if isinstance(v, dict) and k != "alone"}
     assert flights == {"train_seed0": 7, "train_seed1000": 7, "dev_seed0": 8, "dev_seed1": 8}
     for s in data["scores"]:
-        parts = [v for v in s.values() if isinstance(v, dict)]
+        parts = [v for k, v in s.items() if isinstance(v, dict) and k != "alone"]
         assert s["goals"] == sum(p["goals"] for p in parts) and s["score"] == s["goals"] - s["crashes"]
-    first, _, second = data["scores"]
+    _, first, second = data["scores"]
     assert second == {**first, "model": str(twin)}  # the same weights score the same
-    best = max(s["score"] for s in data["scores"])
-    assert data["chosen"] == next(s["model"] for s in data["scores"] if s["score"] == best)
+    # in 30 steps nothing arrives and the filter stops every crash: all three tie at 0 ...
+    assert [s["score"] for s in data["scores"]] == [0, 0, 0]
+    assert data["tie_break"]["tied"] == [str(straight), str(hover), str(twin)]
+    # ... and alone flying straight crashes where hovering does not
+    assert data["scores"][0]["alone"]["crashes"] > 0 == data["scores"][1]["alone"]["crashes"]
+    assert all(s["alone"]["score"] == s["alone"]["goals"] - s["alone"]["crashes"] for s in data["scores"])
+    assert data["chosen"] == str(hover)  # best alone; its twin, as good, is listed after it
     assert "<- chosen" in capsys.readouterr().out
     assert "teacher" not in data and "missed_by_teacher_too" not in data["scores"][0]
     assert main(["select", str(tmp_path / "missing.pt"), "--no-progress"]) == 2
@@ -77,10 +83,14 @@ def test_select_alone_flies_each_checkpoint_without_its_filter_beside_the_rule(t
     assert "alone: score" in capsys.readouterr().out
     scored = zip(runs["alone"]["scores"], runs["rule"]["scores"], runs["off"]["scores"], strict=True)
     for with_alone, rule, off in scored:
-        assert {k: v for k, v in with_alone.items() if k != "alone"} == rule  # the rule is untouched
+        assert {k: v for k, v in with_alone.items() if k != "alone"} == {
+            k: v for k, v in rule.items() if k != "alone"
+        }  # the rule is untouched
+        if "alone" in rule:  # flown alone to break a tie at the top: the same figures
+            assert rule["alone"] == with_alone["alone"]
         assert with_alone["alone"] == {k: v for k, v in off.items() if k != "model"}
         assert with_alone["alone"]["score"] == with_alone["alone"]["goals"] - with_alone["alone"]["crashes"]
     assert runs["alone"]["chosen"] == runs["rule"]["chosen"]
     # flying straight ahead, the filter's vetoes change the flights: the two figures differ
-    straight_rule = {k: v for k, v in runs["rule"]["scores"][0].items() if k != "model"}
+    straight_rule = {k: v for k, v in runs["rule"]["scores"][0].items() if k not in ("model", "alone")}
     assert runs["alone"]["scores"][0]["alone"] != straight_rule
