@@ -30,6 +30,9 @@ DEFAULT_MODEL_PATH = Path(__file__).resolve().parent / "models" / "default.pt"
 
 PGUD_MODEL_PATH = DEFAULT_MODEL_PATH.with_name("pgud.pt")
 """The bundled model until 0.5.0, kept as the imitation recipes' ``init_model`` (recipes/pgud.yaml)."""
+PRIVILEGED_LAB_HINGE_MODEL_PATH = DEFAULT_MODEL_PATH.with_name("privileged-lab-hinge.pt")
+"""The bundled model from 0.5.1 to 0.5.6 (recipes/privileged-lab-hinge.yaml's seed 0), kept as the
+second-round recipes' ``init_model``."""
 
 
 def masked_argmax(q: ArrayLike, allowed: ArrayLike | None) -> NDArray[np.int64]:

@@ -14,7 +14,7 @@ import pytest
 
 from quadnav_onboard.checkpoint import load_checkpoint
 from quadnav_onboard.config import ConfigError
-from quadnav_onboard.policy import DEFAULT_MODEL_PATH, PGUD_MODEL_PATH
+from quadnav_onboard.policy import DEFAULT_MODEL_PATH, PGUD_MODEL_PATH, PRIVILEGED_LAB_HINGE_MODEL_PATH
 from sim_harness import cmd_train
 from sim_harness.rl.config import TrainConfig, load_train_config
 
@@ -33,6 +33,9 @@ PRIVILEGED_LAB_HINGE = REPO / "recipes" / "privileged-lab-hinge.yaml"
 PRIVILEGED_LAB_HINGE3 = REPO / "recipes" / "privileged-lab-hinge3.yaml"
 PRIVILEGED_LAB_HINGE3_ROUND2 = REPO / "recipes" / "privileged-lab-hinge3-round2.yaml"
 PRIVILEGED_LAB_HINGE3_ROUND2_F25 = REPO / "recipes" / "privileged-lab-hinge3-round2-f25.yaml"
+PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES = (
+    REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures.yaml"
+)
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -158,21 +161,29 @@ def test_privileged_lab_hinge3_recipe_is_the_hinge_recipe_at_weight_3() -> None:
     assert recipe.imitation_veto_weight == 3.0 and recipe.lab_layouts == 200
 
 
-def test_second_round_recipe_is_the_weight_3_recipe_from_the_pinned_bundled_model() -> None:
+def test_second_round_recipe_is_the_weight_3_recipe_from_the_pinned_earlier_bundled_model() -> None:
     """recipes/privileged-lab-hinge3-round2.yaml is recipes/privileged-lab-hinge3.yaml with
-    ``--init-model quadnav_onboard/models/default.pt --dagger-iterations 8`` (the command its seeds
-    were first trained with) under its own name, and pins the start to the bundled model's sha256:
-    when default.pt changes, this fails until init_model names a kept copy of the old model."""
+    ``--init-model quadnav_onboard/models/privileged-lab-hinge.pt --dagger-iterations 8`` under its
+    own name, and pins the start to that file's sha256: the model bundled from 0.5.1 to 0.5.6, kept
+    beside default.pt (its seeds were first trained from default.pt when it was that model)."""
     recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2)]))
     flags = cmd_train.config_for(_parse([
-        "--recipe", str(PRIVILEGED_LAB_HINGE3), "--init-model", "quadnav_onboard/models/default.pt",
-        "--dagger-iterations", "8",
+        "--recipe", str(PRIVILEGED_LAB_HINGE3),
+        "--init-model", "quadnav_onboard/models/privileged-lab-hinge.pt", "--dagger-iterations", "8",
     ]))
     assert recipe.name == "privileged-lab-hinge3-round2"
     assert dataclasses.replace(recipe, name=flags.name, init_model_sha256="") == flags
-    assert (REPO / recipe.init_model).resolve() == DEFAULT_MODEL_PATH.resolve()
+    assert (REPO / recipe.init_model).resolve() == PRIVILEGED_LAB_HINGE_MODEL_PATH.resolve()
     assert recipe.init_model_sha256 == load_checkpoint(REPO / recipe.init_model).sha256
     assert recipe.dagger_iterations == 8
+
+
+def test_the_kept_earlier_bundled_model_is_the_privileged_lab_hinge_recipe_s_seed_0() -> None:
+    """quadnav_onboard/models/privileged-lab-hinge.pt was trained with recipes/privileged-lab-hinge.yaml
+    at seed 0, the recipe the docs name for it."""
+    meta = load_checkpoint(PRIVILEGED_LAB_HINGE_MODEL_PATH).meta["train_config"]
+    trained = load_train_config(meta, "privileged-lab-hinge.pt meta.train_config")
+    assert trained == cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE), "--seed", "0"]))
 
 
 def test_second_round_quarter_recipe_is_the_second_round_with_a_quarter_behind_the_filter() -> None:
@@ -187,11 +198,26 @@ def test_second_round_quarter_recipe_is_the_second_round_with_a_quarter_behind_t
     assert recipe.dagger_filtered_share == 0.25 and recipe.init_model_sha256 == flags.init_model_sha256
 
 
-def test_shipped_recipe_file_is_the_privileged_lab_hinge_recipe_s_seed_0() -> None:
-    """recipes/shipped.yaml (the bundled model's keys) is recipes/privileged-lab-hinge.yaml at seed
-    0, so the recipe the docs call the bundled model's is the one it was trained with."""
+def test_failure_sampling_recipe_is_the_quarter_recipe_with_its_flag() -> None:
+    """recipes/privileged-lab-hinge3-round2-f25-failures.yaml is the quarter second round with
+    ``--dagger-world-sampling failures`` (the command its first seeds were trained with), its own name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES)]))
+    flags = cmd_train.config_for(
+        _parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2_F25), "--dagger-world-sampling", "failures"])
+    )
+    assert recipe.name == "privileged-lab-hinge3-round2-f25-failures"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert recipe.dagger_world_sampling == "failures" and recipe.dagger_filtered_share == 0.25
+
+
+def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:
+    """recipes/shipped.yaml (the bundled model's keys) is
+    recipes/privileged-lab-hinge3-round2-f25-failures.yaml at seed 4, so the recipe the docs call the
+    bundled model's is the one it was trained with."""
     shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
-    assert shipped == cmd_train.config_for(_parse(["--recipe", str(PRIVILEGED_LAB_HINGE), "--seed", "0"]))
+    assert shipped == cmd_train.config_for(
+        _parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES), "--seed", "4"])
+    )
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
