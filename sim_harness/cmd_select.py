@@ -13,7 +13,9 @@ to the one that scores most so (goals − crashes alone): the filter's margins a
 cap what any planner can score with the filter, so ties at the top are common, and what the
 network plans on its own is what tells them apart. A tie that remains goes to the checkpoint
 listed first. With ``--shield off`` the rule is already flown alone, and ties go to the first
-listed. The held-out Env 8–10 and the test worlds (procedural seed 4242) are never flown here.
+listed; so do ties where any tied checkpoint flies without a filter (``--shield model`` and a
+checkpoint that records none). The held-out Env 8–10 and the test worlds (procedural seed 4242)
+are never flown here.
 
 With ``--teacher`` the privileged teacher (``sim_harness.rl.teacher``: a search over the primitives
 against the true world, two primitives deep, choosing among those the filter allows) flies the
