@@ -348,7 +348,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "reward and outcome per world and trial, then the success and collision-free rates.",
     )
     add_flights_flags(p, shield_default="model", trials_default=5, trials_note=", as in the paper")
-    p.add_argument("--json", default=None, metavar="OUT", help="also write the rows and summary as JSON")
+    p.add_argument("--json", default=None, metavar="OUT",
+                   help="also write the rows (one per flight: the table's columns and start_m, "
+                        "where it started) and the summary as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -174,8 +174,9 @@ def test_eval_at_the_flight_scale_goes_slower_and_says_so(tmp_path) -> None:
 
 
 def test_eval_without_start_jitter_flies_every_trial_alike_and_says_so(tmp_path, capsys) -> None:
-    """``--start-jitter-m 0`` (how the dry run starts): the trials of a world are the same flight;
-    with the default jitter they are not. A negative jitter is refused before any flight."""
+    """``--start-jitter-m 0`` (how the dry run starts): the trials of a world are the same flight,
+    from the path's start; with the default jitter they are not, and each row says where within
+    the jitter it began. A negative jitter is refused before any flight."""
     from quadnav_onboard.daemon.testing import constant_action_checkpoint
 
     world = tmp_path / "free.yaml"
@@ -183,14 +184,18 @@ def test_eval_without_start_jitter_flies_every_trial_alike_and_says_so(tmp_path,
     model = tmp_path / "straight.pt"
     constant_action_checkpoint(str(model), FORWARD)
     argv = ["eval", "--model", str(model), "--world", str(world), "--trials", "3", "--no-progress"]
-    rewards = {}
+    rewards, starts = {}, {}
     for jitter in ("0", "0.5"):
         out = tmp_path / f"eval{jitter}.json"
         assert main([*argv, "--start-jitter-m", jitter, "--json", str(out)]) == 0
         data = json.loads(out.read_text())
         assert data["start_jitter_m"] == float(jitter)
         rewards[jitter] = {r["total_reward"] for r in data["rows"]}
+        starts[jitter] = [tuple(r["start_m"]) for r in data["rows"]]
     assert len(rewards["0"]) == 1 and len(rewards["0.5"]) == 3
+    assert starts["0"] == [(0.0, 0.0, 2.0)] * 3  # the path's start, where every row says it began
+    assert len(set(starts["0.5"])) == 3
+    assert all(max(abs(a - b) for a, b in zip(s, (0, 0, 2), strict=True)) <= 0.5 for s in starts["0.5"])
     with pytest.raises(SystemExit) as exc:
         main([*argv, "--start-jitter-m", "-0.1"])
     assert exc.value.code == 2

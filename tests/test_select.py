@@ -41,6 +41,25 @@ def test_select_scores_goals_minus_crashes_on_train_and_dev_sets_only(tmp_path, 
     assert "missing.pt" in capsys.readouterr().err
 
 
+def test_select_without_the_filter_leaves_ties_to_the_first_listed(tmp_path, capsys):
+    """With ``--shield off`` the rule is already flown alone: a tie at the top flies nothing more
+    and goes to the checkpoint listed first, whichever order they come in."""
+    hover, twin = tmp_path / "hover.pt", tmp_path / "twin.pt"
+    constant_action_checkpoint(str(hover), 13)
+    twin.write_bytes(hover.read_bytes())
+    chosen = []
+    for order in ((hover, twin), (twin, hover)):
+        out = tmp_path / f"sel-{order[0].stem}.json"
+        argv = ["select", *map(str, order), "--trials", "1", "--max-steps", "30", "--shield", "off"]
+        assert main([*argv, "--no-progress", "--json", str(out)]) == 0
+        data = json.loads(out.read_text())
+        assert [s["score"] for s in data["scores"]] == [0, 0]  # hovering neither arrives nor crashes
+        assert data["tie_break"] is None and all("alone" not in s for s in data["scores"])
+        chosen.append(data["chosen"])
+    assert chosen == [str(hover), str(twin)]
+    assert "tied at" not in capsys.readouterr().out
+
+
 def test_select_flies_the_privileged_teacher_in_the_same_flights_as_a_reference(tmp_path, capsys):
     """--teacher: the teacher flies the rule's flights behind the first checkpoint's filter; its
     score is reported beside the candidates', it is never chosen, and each candidate's misses are

@@ -81,6 +81,9 @@ class EvalRow:
     """Sum of the paper's rewards over the flight."""
     outcome: str
     """goal | crash | deviation | timeout, and under a flight config geofence | altitude."""
+    start_m: tuple[float, float, float] | None = None
+    """Where the flight started (world frame, m, the start jitter included): with the primitives'
+    fixed steps it sets every position the vehicle can reach, such as its heights at 1 m."""
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -321,6 +324,7 @@ def evaluate(
         env = _world_env(world, w_i, trials, seed, env_config, limits, depth_noise, known_rooms)
         cfg = env.config
         depth, rel = env.reset()
+        starts = np.round(env.pos_m.astype(np.float64), 3)
         if on_world_start is not None:
             on_world_start(world, env)
         outcome = np.full(trials, None, dtype=object)
@@ -354,6 +358,7 @@ def evaluate(
                     crash=outcome[t] == "crash",
                     total_reward=round(float(env.episode_return[t]), 3),
                     outcome=str(outcome[t]),
+                    start_m=(float(starts[t, 0]), float(starts[t, 1]), float(starts[t, 2])),
                 )
             )
         if on_world_done is not None:
