@@ -60,6 +60,25 @@ def test_select_without_the_filter_leaves_ties_to_the_first_listed(tmp_path, cap
     assert "tied at" not in capsys.readouterr().out
 
 
+def test_select_leaves_a_tie_to_the_first_listed_when_a_tied_checkpoint_has_no_filter(tmp_path):
+    """``--shield model`` with one checkpoint that records a filter and one that records none: a
+    tie at the top is not broken alone (one of them already flew alone), so the first listed wins,
+    even where flying both alone would have chosen the other."""
+    straight, hover, shipped = tmp_path / "straight.pt", tmp_path / "hover.pt", tmp_path / "straight-f.pt"
+    constant_action_checkpoint(str(straight), 4)
+    constant_action_checkpoint(str(hover), 13)
+    assert main(["ship", "--model", str(straight), "--out", str(shipped), "--shield", "on"]) == 0
+    out = tmp_path / "sel.json"
+    argv = ["select", str(shipped), str(hover), "--trials", "1", "--max-steps", "30", "--shield", "model"]
+    assert main([*argv, "--alone", "--no-progress", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    # straight behind its filter and hovering alone neither arrive nor crash in 30 steps ...
+    assert [s["score"] for s in data["scores"]] == [0, 0]
+    # ... and alone straight crashes, so a tie-break alone would have chosen hover
+    assert data["scores"][0]["alone"]["score"] < data["scores"][1]["alone"]["score"] == 0
+    assert data["tie_break"] is None and data["chosen"] == str(shipped)
+
+
 def test_select_flies_the_privileged_teacher_in_the_same_flights_as_a_reference(tmp_path, capsys):
     """--teacher: the teacher flies the rule's flights behind the first checkpoint's filter; its
     score is reported beside the candidates', it is never chosen, and each candidate's misses are
