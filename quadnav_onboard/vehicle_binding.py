@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from quadnav_onboard.logs import get_logger
+from quadnav_onboard.ports import free_udp_port
 
 __all__ = [
     "Binding",
@@ -181,12 +181,12 @@ class LinkGuard:
         if len(found) != 1:
             raise BindingError(self.url, found, self.listen_s)
         self.binding = found[0]
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:  # a free loopback port
-            probe.bind(("127.0.0.1", 0))
-            self._mavsdk_addr = ("127.0.0.1", int(probe.getsockname()[1]))
         self._mavsdk_tx, _ = await loop.create_datagram_endpoint(
             lambda: _Endpoint(self, "mavsdk"), local_addr=("127.0.0.1", 0)
         )
+        # MAVSDK binds this port itself; it comes from below the ephemeral range so that no
+        # port-0 socket (the relay's own included) can be handed it in between.
+        self._mavsdk_addr = ("127.0.0.1", free_udp_port())
         log.info("vehicle_bound", vehicle=str(self.binding), url=self.url, listened_s=self.listen_s)
         return self.binding
 

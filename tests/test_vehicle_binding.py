@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from mavsdk.plugins.mocap import MocapError, MocapResult
 
+from quadnav_onboard.ports import ephemeral_low
 from quadnav_onboard.vehicle import MavsdkVehicle, VehicleError, VehicleErrorKind
 from quadnav_onboard.vehicle_binding import BindingError, LinkGuard, autopilot_frames, guarded_address
 from sim_harness.px4 import free_udp_port
@@ -90,6 +91,8 @@ async def test_one_autopilot_is_bound_by_system_component_and_the_address_it_sen
             b = await guard.bind(timeout_s=5.0)
             assert (b.system_id, b.component_id, b.address) == (1, 1, a.getsockname())
             assert guard.mavsdk_url.startswith("udpin://127.0.0.1:")
+            # MAVSDK's port is one no port-0 socket can be handed while MAVSDK starts
+            assert int(guard.mavsdk_url.rsplit(":", 1)[1]) < ephemeral_low()
         finally:
             done.set()
             await task
