@@ -9,7 +9,8 @@ that frame seen from points 0.25 m apart along the path, as in a flight.
 
 Prints median and p99 (ms) per variant, and the median of the filter's verdict alone
 (``shield_verdict`` on the full memory): the first filter (area-averaged view, no shadows, no
-floor), the shipped one, the shipped one without forgetting seen-through shadows, and no filter.
+floor), the shipped one, the shipped one without forgetting seen-through shadows, the shipped one
+looking ahead along the stop (``lookahead: stop``), and no filter.
 
     .venv/bin/python benchmarks/bench_shield.py --flights [--scale 0.5] [--trials 1] [--json OUT]
 
@@ -239,6 +240,7 @@ def main() -> None:
         "first (mean view, no shadow, no floor)": first_filter(shipped),
         "shipped": shipped,
         "shipped, shadows kept": dataclasses.replace(shipped, carve_shadows=False),
+        "shipped, stop look-ahead": dataclasses.replace(shipped, lookahead="stop"),
         "shield off": dataclasses.replace(shipped, enabled=False),
     }
     out = {"scale_m": args.scale, "calls": args.calls, "prepare": {}}

@@ -41,7 +41,7 @@ from quadnav_onboard.frames import body_to_world, pixel_slopes, world_to_body
 from quadnav_onboard.jit import CAN_CACHE, kernel_array
 from quadnav_onboard.path import RoughPath
 from quadnav_onboard.preprocess import OUT_SIZE
-from quadnav_onboard.primitives import PrimitiveSet, bezier_position, bezier_velocity
+from quadnav_onboard.primitives import PrimitiveSet, bezier_control_points, bezier_position, bezier_velocity
 
 __all__ = [
     "PointMemory",
@@ -90,8 +90,15 @@ class ShieldConfig:
     samples: Annotated[int, pydantic.Field(ge=1, le=64)] = 8
     """Points sampled along each primitive (its start excluded). Range: [1, 64]."""
     lookahead_s: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
-    """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot).
-    Range: [0, 5]."""
+    """Extra time (s) at the primitive's end velocity checked past its end (stopping overshoot),
+    with ``lookahead = "velocity"``. Range: [0, 5]."""
+    lookahead: str = "velocity"
+    """What is checked past the primitive's end. ``"velocity"``: one more point ``lookahead_s``
+    further on at the end velocity. ``"stop"``: the stop that can always follow, a primitive of
+    zero displacement starting at this one's end velocity (so the next decision can hover), flown
+    through the same tracking model and sampled as the primitive is: every allowed primitive
+    leaves the vehicle a way to stop with ``clearance_m`` kept. A stop overshoots the end by about
+    4/27 of one step's travel plus the tracking lag, instead of ``lookahead_s`` of it."""
     min_travel_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """A decision taken less than this far (m) from a remembered one (the nearest such) replaces it
     instead of pushing the oldest out: hovering in place, or going back and forth between two
@@ -188,6 +195,8 @@ class ShieldConfig:
             raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
         if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
             raise ValueError("fields of view must be in (0, 180) deg")
+        if self.lookahead not in ("velocity", "stop"):
+            raise ValueError(f"lookahead must be 'velocity' or 'stop', got {self.lookahead!r}")
         if self.depth_pooling not in ("min", "mean"):
             raise ValueError(f"depth_pooling must be 'min' or 'mean', got {self.depth_pooling!r}")
         if not (0 <= self.shadow_m < self.search_radius_m):
@@ -494,7 +503,9 @@ def primitive_samples(
     be commanded. With the vehicle's ``pos_world_m`` and ``vel_world_m_s`` (N, 3) the samples are
     where a position controller (critically damped, ``track_omega_rad_s``, acceleration limited to
     ``track_accel_m_s2``) following the primitive will *be*, not where it is told to be: sharp
-    reversals overshoot. The last sample looks ``lookahead_s`` further on at the end velocity.
+    reversals overshoot. Past the end come the look-ahead's points (``cfg.lookahead``): one
+    ``lookahead_s`` further on at the end velocity, or the ``samples`` points of the stop that
+    would follow (shape then (N, n_actions, 2 * samples, 3)).
     """
     start = np.asarray(start_world_m, dtype=np.float64)
     yaw = np.asarray(yaw_rad, dtype=np.float64)
@@ -505,22 +516,30 @@ def primitive_samples(
     k_total = per * cfg.samples
     u = (np.arange(1, k_total + 1) / k_total)[:, None, None]  # (K, 1, 1)
     cmd_h = np.moveaxis(bezier_position(ctrl[None], u), 0, 2)  # (N, A, K, 3)
+    vcmd_h = np.moveaxis(bezier_velocity(ctrl[None], u, prims.duration_s), 0, 2)
+    if cfg.lookahead == "stop":  # then the stop from the end velocity: zero displacement, one step
+        stop = bezier_control_points(np.zeros((a, 3)), prims.end_velocity_m_s(np.arange(a)), prims.duration_s)
+        u_stop = u[:, :, 0]  # (K, 1): against (A, 4, 3) gives (K, A, 3)
+        stop_pos = np.moveaxis(bezier_position(stop, u_stop), 0, 1)[None]  # (1, A, K, 3)
+        stop_vel = np.moveaxis(bezier_velocity(stop, u_stop, prims.duration_s), 0, 1)[None]
+        cmd_h = np.concatenate([cmd_h, cmd_h[:, :, -1:] + stop_pos], axis=2)
+        vcmd_h = np.concatenate([vcmd_h, np.broadcast_to(stop_vel, vcmd_h.shape)], axis=2)
     cmd = start[:, None, None, :] + body_to_world(cmd_h, yaw[:, None, None])
     if pos_world_m is None:
         along = cmd[:, :, per - 1 :: per]
         v_end = body_to_world(np.broadcast_to(prims.end_velocity_m_s(np.arange(a)), (n, a, 3)), yaw[:, None])
     else:
-        vcmd_h = np.moveaxis(bezier_velocity(ctrl[None], u, prims.duration_s), 0, 2)
-        vcmd = body_to_world(vcmd_h, yaw[:, None, None])
         along, v_end = _predict_tracking(
             np.asarray(pos_world_m, dtype=np.float64),
             np.zeros(start.shape) if vel_world_m_s is None else np.asarray(vel_world_m_s, dtype=np.float64),
             cmd,
-            vcmd,
+            body_to_world(vcmd_h, yaw[:, None, None]),
             prims.duration_s / k_total,
             per,
             cfg,
         )
+    if cfg.lookahead == "stop":
+        return along
     tail = along[:, :, -1] + v_end * cfg.lookahead_s
     return np.concatenate([along, tail[:, :, None]], axis=2)
 

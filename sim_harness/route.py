@@ -274,7 +274,7 @@ def _allowed(world: World, prims: PrimitiveSet, shield: ShieldConfig, pos: NDArr
     m, a = clear.shape
     ok = clear >= shield.clearance_m
     if altitude_m is not None:
-        z = samples[:, :, :-1, 2]  # where the vehicle is (the supervisor's stop), not the look-ahead
+        z = samples[:, :, : shield.samples, 2]  # where the vehicle is (the supervisor stops it), not past
         ok &= (z.min(axis=2) >= altitude_m[0]) & (z.max(axis=2) <= altitude_m[1])
     d_world = body_to_world(np.broadcast_to(prims.end_displacement_m(np.arange(a)), (m, a, 3)), yaw[:, None])
     v_world = body_to_world(np.broadcast_to(prims.end_velocity_m_s(np.arange(a)), (m, a, 3)), yaw[:, None])

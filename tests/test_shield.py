@@ -495,3 +495,72 @@ def test_a_fence_in_a_config_file_is_range_checked():
         parse_config(ShieldConfig, {"fence_min_m": [0, 0, 0], "fence_max_m": [1, 1, math.nan]}, source="x")
     ok = parse_config(ShieldConfig, {"fence_min_m": [0, 0, 0], "fence_max_m": [1, 1, 1]}, source="x")
     assert ok.fence_max_m == (1.0, 1.0, 1.0)
+
+
+STOP = ShieldConfig(enabled=True, lookahead="stop")
+DOWN_FORWARD = DEFAULT_DIRECTIONS.index((1, 0, -1))
+
+
+def test_the_stop_look_ahead_is_the_hover_the_next_decision_can_choose():
+    """With ``lookahead: stop`` the points past each primitive's end are those of the hover
+    primitive commanded from its end at its end velocity: what the filter then checks for the
+    hover at the next decision. An allowed primitive leaves an allowed hover behind it."""
+    v0 = np.array([[0.5, -0.5, 0.0]])
+    samples = primitive_samples(PRIMS, np.zeros((1, 3)), v0, np.zeros(1), STOP)
+    assert samples.shape == (1, PRIMS.n_actions, 2 * STOP.samples, 3)
+    for a in range(PRIMS.n_actions):
+        end = samples[:, a, STOP.samples - 1]
+        nxt = primitive_samples(PRIMS, end, PRIMS.end_velocity_m_s(np.array([a])), np.zeros(1), STOP)
+        np.testing.assert_allclose(samples[0, a, STOP.samples :], nxt[0, HOVER, : STOP.samples], atol=1e-9)
+        still = np.repeat(nxt[0, HOVER, -1:], STOP.samples, 0)  # after the stop, it stays
+        np.testing.assert_allclose(nxt[0, HOVER, STOP.samples :], still)
+
+
+def test_the_stop_after_a_descent_is_flown_as_the_simulated_vehicle_flies_it():
+    """The tracked stop (filter's model) and the sim's quad agree on the lowest point of a 1 m
+    descent followed by a hover, within 5 cm; it dips below the descent's end."""
+    from quadnav_onboard.primitives import bezier_position, bezier_velocity
+    from sim_harness.quad import QuadParams, QuadState, track
+
+    start, v0 = np.array([[0.0, 0.0, 2.0]]), np.zeros((1, 3))
+    predicted = primitive_samples(PRIMS, start, v0, np.zeros(1), STOP, start, v0)[0, DOWN_FORWARD]
+    q = QuadParams()
+    k = round(PRIMS.duration_s / q.dt_s)
+    u = (np.arange(1, k + 1) / k)[:, None]
+    ctrl = PRIMS.control_points(np.array([DOWN_FORWARD]), v0)
+    stop = PRIMS.control_points(np.array([HOVER]), PRIMS.end_velocity_m_s(np.array([DOWN_FORWARD])))
+    end = ctrl[:, -1]
+    state, first = track(
+        QuadState(start.copy(), v0.copy()), start + bezier_position(ctrl, u), bezier_velocity(ctrl, u, 1.0), q
+    )
+    _, second = track(state, start + end + bezier_position(stop, u), bezier_velocity(stop, u, 1.0), q)
+    sim_low = min(first[:, 0, 2].min(), second[:, 0, 2].min())
+    assert predicted[:, 2].min() == pytest.approx(sim_low, abs=0.05)
+    assert predicted[:, 2].min() < 1.0 - 0.1
+
+
+def test_over_a_known_floor_the_stop_look_ahead_allows_a_descent_the_velocity_one_vetoes():
+    """1.8 m up, nothing seen, the floor at 0: a 1 m descent ends 0.8 m up. Carried on 0.3 s at
+    its end velocity it is checked to ~0.43 m (vetoed at 0.5 m clearance); with the stop that can
+    follow, to ~0.57 m (allowed). From 1.65 m both veto it."""
+    from quadnav_onboard.shield import shield_verdict
+
+    for z, velocity_allows, stop_allows in ((1.8, False, True), (1.65, False, False), (2.2, True, True)):
+        pos = np.array([[0.0, 0.0, z]])
+        still = (pos, np.zeros((1, 3)), np.zeros(1), pos, np.zeros((1, 3)))
+        for cfg, expected in ((ON, velocity_allows), (STOP, stop_allows)):
+            mem = PointMemory(1, cfg)
+            mem.add([0], np.ones((1, 32, 32), np.float32), pos, np.zeros(1))
+            allowed, _ = shield_verdict(
+                PRIMS, mem.points, mem.depth_m, mem.pose, *still, cfg, floor_z_m=[0.0]
+            )
+            assert allowed[0, DOWN_FORWARD] == expected, (z, cfg.lookahead)
+
+
+def test_an_unknown_look_ahead_is_refused_and_named():
+    from quadnav_onboard.config import ConfigError, parse_config
+
+    with pytest.raises(ValueError, match="lookahead must be 'velocity' or 'stop', got 'brake'"):
+        ShieldConfig(enabled=True, lookahead="brake")
+    with pytest.raises(ConfigError, match="lookahead"):
+        parse_config(ShieldConfig, {"lookahead": "brake"}, source="flight.yaml: shield")
