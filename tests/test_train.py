@@ -308,3 +308,19 @@ def test_resume_from_a_corrupt_run_config_is_refused_without_a_traceback(tmp_pat
     assert main(["train", "--resume", str(tmp_path), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and f"{tmp_path / 'config.json'}" in err
+
+
+def test_the_filters_look_ahead_reaches_the_training_env_and_the_checkpoint(tmp_path) -> None:
+    """``--shield-lookahead stop``: the env trained in and the checkpoint's filter look along the
+    stop (what eval and the daemon then fly with); an unknown look-ahead is refused by name."""
+    from quadnav_onboard.shield import shield_config_from_meta
+    from sim_harness.rl.config import load_train_config
+    from sim_harness.rl.train import env_config_for
+
+    cfg = _tiny(tmp_path, shield=True, shield_lookahead="stop")
+    assert env_config_for(cfg).shield.lookahead == "stop"
+    assert env_config_for(_tiny(tmp_path, shield=True)).shield.lookahead == "velocity"
+    ckpt = load_checkpoint(train(cfg, progress=False).model_path)
+    assert shield_config_from_meta(ckpt.meta).lookahead == "stop"
+    with pytest.raises(ConfigError, match=r"shield_lookahead.*'brake'.*velocity, stop"):
+        load_train_config({"shield_lookahead": "brake"}, "recipe.yaml")

@@ -139,6 +139,10 @@ class TrainConfig:
     """Decisions whose depth points the shield remembers. Range: [1, 64]."""
     shield_require_seen: bool = False
     """The shield also vetoes primitives into space no remembered view saw to be free."""
+    shield_lookahead: str = "velocity"
+    """What the shield checks past each primitive's end: "velocity" (0.3 s on at the end
+    velocity) or "stop" (the stop that can follow it; ``lookahead`` of
+    quadnav_onboard.shield.ShieldConfig)."""
     shield_band: bool = False
     """The shield also keeps each world's deviation limit (the episode's ``"deviation"`` stop
     round its rough path) as known space, as the flight daemon's filter does round the path it
@@ -302,6 +306,11 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'dagger_world_sampling': bad value {cfg.dagger_world_sampling!r}: "
             "choices are uniform, failures"
+        )
+    if cfg.shield_lookahead not in ("velocity", "stop"):
+        raise ConfigError(
+            f"{source}: key 'shield_lookahead': bad value {cfg.shield_lookahead!r}: "
+            "choices are velocity, stop"
         )
     needs = cfg.imitation_teacher == "filter" and cfg.dagger_iterations > 0
     if needs and not (cfg.init_model and cfg.shield):

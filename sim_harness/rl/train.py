@@ -131,6 +131,7 @@ def env_config_for(cfg: TrainConfig) -> EnvConfig:
             clearance_m=cfg.shield_clearance_m,
             memory_steps=cfg.shield_memory_steps,
             require_seen=cfg.shield_require_seen,
+            lookahead=cfg.shield_lookahead,
         ),
         shield_band=cfg.shield_band,
     )
