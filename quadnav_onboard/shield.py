@@ -97,8 +97,9 @@ class ShieldConfig:
     further on at the end velocity. ``"stop"``: the stop that can always follow, a primitive of
     zero displacement starting at this one's end velocity (so the next decision can hover), flown
     through the same tracking model and sampled as the primitive is: every allowed primitive
-    leaves the vehicle a way to stop with ``clearance_m`` kept. A stop overshoots the end by about
-    4/27 of one step's travel plus the tracking lag, instead of ``lookahead_s`` of it."""
+    leaves the vehicle a way to stop ``clearance_m`` from everything the filter knows of. A stop
+    overshoots the end by about 4/27 of one step's travel plus the tracking lag, instead of
+    ``lookahead_s`` of it; docs/results.md ("How much of the cap is physics") has its figures."""
     min_travel_m: Annotated[float, pydantic.Field(ge=0, le=5)] = 0.3
     """A decision taken less than this far (m) from a remembered one (the nearest such) replaces it
     instead of pushing the oldest out: hovering in place, or going back and forth between two
