@@ -23,10 +23,13 @@ def test_ports_sit_below_the_ephemeral_range_and_bind() -> None:
 
 
 def test_one_process_never_gets_the_same_port_twice_even_if_random_is_seeded() -> None:
-    ports = []
-    for _ in range(50):
-        random.seed(0)
-        ports.append(free_udp_port())
+    state, ports = random.getstate(), []
+    try:
+        for _ in range(50):
+            random.seed(0)
+            ports.append(free_udp_port())
+    finally:
+        random.setstate(state)
     assert len(set(ports)) == len(ports)
 
 
