@@ -44,6 +44,7 @@ from quadnav_onboard.preprocess import OUT_SIZE
 from quadnav_onboard.primitives import PrimitiveSet, bezier_control_points, bezier_position, bezier_velocity
 
 __all__ = [
+    "LOOKAHEADS",
     "PointMemory",
     "ShieldConfig",
     "allowed_actions",
@@ -67,6 +68,10 @@ INPUT_SIZE = OUT_SIZE
 
 _OffsetM = Annotated[float, pydantic.Field(ge=-1, le=1)]
 _CoordM = Annotated[float, pydantic.Field(ge=-10_000, le=10_000)]
+
+
+LOOKAHEADS = ("velocity", "stop")
+"""What ``ShieldConfig.lookahead`` may be."""
 
 
 @dataclass(frozen=True)
@@ -196,7 +201,7 @@ class ShieldConfig:
             raise ValueError("need memory_steps >= 1, samples >= 1 and lookahead_s >= 0")
         if not (0 < self.hfov_deg < 180 and 0 < self.vfov_deg < 180):
             raise ValueError("fields of view must be in (0, 180) deg")
-        if self.lookahead not in ("velocity", "stop"):
+        if self.lookahead not in LOOKAHEADS:
             raise ValueError(f"lookahead must be 'velocity' or 'stop', got {self.lookahead!r}")
         if self.depth_pooling not in ("min", "mean"):
             raise ValueError(f"depth_pooling must be 'min' or 'mean', got {self.depth_pooling!r}")

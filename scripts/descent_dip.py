@@ -9,6 +9,8 @@ from both leaves the vehicle's centre a band of heights; a level pass under the 
 the centre at or below the band's top, and a descent taken to get there keeps the floor clearance
 only from a start at least ``clearance + least dip`` up. Starts between the band's top and that
 height cannot pass with any sequence of primitives (climbing back ends above the band's top).
+It also prints how far past a primitive's end the filter looks with each ``lookahead``
+(``velocity``, the default, and ``stop``), which is what widens that band for the filter.
 
 Usage:  python scripts/descent_dip.py [--primitive-scale 1.0] [--ceiling-m 2.10] [--clearance-m 0.5]
             [--json OUT]
@@ -29,28 +31,51 @@ import numpy as np
 def lowest_after_descents(scale_m: float) -> dict[str, dict[str, float]]:
     """For each kind of second primitive (down, level, up), the least and the greatest drop (m)
     below the start over every descent followed by every primitive of that kind."""
-    from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet, bezier_position, bezier_velocity
+    from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
+    from quadnav_onboard.step import primitive_targets
     from sim_harness.quad import QuadParams, QuadState, track
 
     prims, q = PrimitiveSet(scale_m=scale_m), QuadParams()
-    k = round(prims.duration_s / q.dt_s)
+    k = max(1, round(prims.duration_s / q.dt_s))  # as the env samples a step
     u = (np.arange(1, k + 1) / k)[:, None]
-    drops: dict[str, list[float]] = {"down": [], "level": [], "up": []}
-    kinds = {-1: "down", 0: "level", 1: "up"}
-    for first in (a for a, d in enumerate(DEFAULT_DIRECTIONS) if d[2] < 0):
-        c1 = prims.control_points(np.array([first]), np.zeros((1, 3)))
-        state, t1 = track(
-            QuadState(np.zeros((1, 3)), np.zeros((1, 3))), bezier_position(c1, u),
-            bezier_velocity(c1, u, prims.duration_s), q,
-        )
-        for second, d in enumerate(DEFAULT_DIRECTIONS):
-            c2 = prims.control_points(np.array([second]), prims.end_velocity_m_s(np.array([first])))
-            _, t2 = track(
-                QuadState(state.pos_m.copy(), state.vel_m_s.copy()), c1[:, -1] + bezier_position(c2, u),
-                bezier_velocity(c2, u, prims.duration_s), q,
-            )
-            drops[kinds[int(np.sign(d[2]))]].append(-min(t1[:, 0, 2].min(), t2[:, 0, 2].min()))
-    return {kind: {"least_m": round(min(v), 3), "most_m": round(max(v), 3)} for kind, v in drops.items()}
+    descents = [a for a, d in enumerate(DEFAULT_DIRECTIONS) if d[2] < 0]
+    first = np.repeat(descents, prims.n_actions)  # every descent, then every primitive after it
+    second = np.tile(np.arange(prims.n_actions), len(descents))
+    yaw, zero = np.zeros(first.size), np.zeros((first.size, 3))
+    targets, target_vel = primitive_targets(prims, first, zero, zero, yaw, u)
+    state, trail1 = track(QuadState(zero.copy(), zero.copy()), targets, target_vel, q)
+    targets, target_vel = primitive_targets(prims, second, targets[-1], target_vel[-1], yaw, u)
+    _, trail2 = track(state, targets, target_vel, q)
+    drop = -np.minimum(trail1[..., 2].min(axis=0), trail2[..., 2].min(axis=0))  # (n,)
+    vertical = np.asarray(DEFAULT_DIRECTIONS)[second, 2]
+    out = {}
+    for kind, v in (("down", -1), ("level", 0), ("up", 1)):
+        sel = drop[vertical == v]
+        out[kind] = {"least_m": round(float(sel.min()), 3), "most_m": round(float(sel.max()), 3)}
+    return out
+
+
+def filter_reach_past_end(scale_m: float) -> dict[str, dict[str, float]]:
+    """How far past a primitive's commanded end the filter checks (m), flown from rest by its
+    tracking model, for each look-ahead: below a straight descent's end and beyond a level
+    forward primitive's end."""
+    from dataclasses import replace
+
+    from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
+    from quadnav_onboard.shield import ShieldConfig, primitive_samples
+
+    prims = PrimitiveSet(scale_m=scale_m)
+    down, ahead = DEFAULT_DIRECTIONS.index((1, 0, -1)), DEFAULT_DIRECTIONS.index((1, 0, 0))
+    rest = np.zeros((1, 3))
+    out = {}
+    for lookahead in ("velocity", "stop"):
+        cfg = replace(ShieldConfig(enabled=True), lookahead=lookahead)
+        s = primitive_samples(prims, rest, rest, np.zeros(1), cfg, pos_world_m=rest, vel_world_m_s=rest)[0]
+        out[lookahead] = {
+            "below_descent_end_m": round(float(-scale_m - s[down, :, 2].min()), 3),
+            "beyond_forward_end_m": round(float(s[ahead, :, 0].max() - scale_m), 3),
+        }
+    return out
 
 
 def main() -> int:
@@ -68,6 +93,7 @@ def main() -> int:
     if top <= args.clearance_m:
         ap.error(f"--ceiling-m {args.ceiling_m} leaves no heights free at --clearance-m {args.clearance_m}")
     drops = lowest_after_descents(args.primitive_scale)
+    reach = filter_reach_past_end(args.primitive_scale)
     least_level = drops["level"]["least_m"]
     stuck = (top, args.clearance_m + least_level)
     cannot_pass = [round(stuck[0], 3), round(stuck[1], 3)] if stuck[1] > stuck[0] else None
@@ -76,11 +102,15 @@ def main() -> int:
         "ceiling_m": args.ceiling_m,
         "clearance_m": args.clearance_m,
         "drop_below_start_m": drops,
+        "filter_reach_past_end_m": reach,
         "band_m": [args.clearance_m, round(top, 3)],
         "starts_that_cannot_pass_m": cannot_pass,
     }
     for kind, d in drops.items():
         print(f"descent then {kind:5s}: lowest point {d['least_m']:.3f}-{d['most_m']:.3f} m below the start")
+    for lookahead, r in reach.items():
+        print(f"the filter's {lookahead} look-ahead checks {r['below_descent_end_m']:.2f} m below a "
+              f"descent's end, {r['beyond_forward_end_m']:.2f} m beyond a forward one's")
     print(f"heights keeping {args.clearance_m} m from floor and ceiling: {args.clearance_m}-{top:.2f} m")
     if cannot_pass:
         print(f"starts from {stuck[0]:.2f} to {stuck[1]:.3f} m cannot pass under the ceiling")

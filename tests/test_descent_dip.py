@@ -27,6 +27,11 @@ def test_a_1_m_descent_drops_past_its_end_whatever_follows_and_leaves_starts_tha
     low, high = r["starts_that_cannot_pass_m"]
     assert low == 1.6 and high == round(0.5 + drop["level"]["least_m"], 3) and high > low
     assert "cannot pass under the ceiling" in done.stdout
+    # the filter looks further past the end than the vehicle goes; less far along the stop
+    reach = r["filter_reach_past_end_m"]
+    assert reach["stop"]["below_descent_end_m"] < reach["velocity"]["below_descent_end_m"]
+    assert reach["stop"]["beyond_forward_end_m"] < reach["velocity"]["beyond_forward_end_m"]
+    assert reach["stop"]["below_descent_end_m"] >= drop["level"]["least_m"] - 1.0 - 0.05
 
 
 def test_at_half_scale_every_start_can_pass_and_bad_numbers_are_refused(tmp_path):

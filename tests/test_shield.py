@@ -519,21 +519,18 @@ def test_the_stop_look_ahead_is_the_hover_the_next_decision_can_choose():
 def test_the_stop_after_a_descent_is_flown_as_the_simulated_vehicle_flies_it():
     """The tracked stop (filter's model) and the sim's quad agree on the lowest point of a 1 m
     descent followed by a hover, within 5 cm; it dips below the descent's end."""
-    from quadnav_onboard.primitives import bezier_position, bezier_velocity
+    from quadnav_onboard.step import primitive_targets
     from sim_harness.quad import QuadParams, QuadState, track
 
-    start, v0 = np.array([[0.0, 0.0, 2.0]]), np.zeros((1, 3))
-    predicted = primitive_samples(PRIMS, start, v0, np.zeros(1), STOP, start, v0)[0, DOWN_FORWARD]
+    start, v0, yaw = np.array([[0.0, 0.0, 2.0]]), np.zeros((1, 3)), np.zeros(1)
+    predicted = primitive_samples(PRIMS, start, v0, yaw, STOP, start, v0)[0, DOWN_FORWARD]
     q = QuadParams()
     k = round(PRIMS.duration_s / q.dt_s)
     u = (np.arange(1, k + 1) / k)[:, None]
-    ctrl = PRIMS.control_points(np.array([DOWN_FORWARD]), v0)
-    stop = PRIMS.control_points(np.array([HOVER]), PRIMS.end_velocity_m_s(np.array([DOWN_FORWARD])))
-    end = ctrl[:, -1]
-    state, first = track(
-        QuadState(start.copy(), v0.copy()), start + bezier_position(ctrl, u), bezier_velocity(ctrl, u, 1.0), q
-    )
-    _, second = track(state, start + end + bezier_position(stop, u), bezier_velocity(stop, u, 1.0), q)
+    targets, target_vel = primitive_targets(PRIMS, [DOWN_FORWARD], start, v0, yaw, u)
+    state, first = track(QuadState(start.copy(), v0.copy()), targets, target_vel, q)
+    targets, target_vel = primitive_targets(PRIMS, [HOVER], targets[-1], target_vel[-1], yaw, u)
+    _, second = track(state, targets, target_vel, q)
     sim_low = min(first[:, 0, 2].min(), second[:, 0, 2].min())
     assert predicted[:, 2].min() == pytest.approx(sim_low, abs=0.05)
     assert predicted[:, 2].min() < 1.0 - 0.1

@@ -18,6 +18,7 @@ import pydantic
 
 from quadnav_onboard.config import CONFIG_DICT, ConfigError, parse_config
 from quadnav_onboard.config_reference import field_docstrings
+from quadnav_onboard.shield import LOOKAHEADS
 from sim_harness.procgen import FAMILIES
 
 __all__ = [
@@ -307,10 +308,10 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
             f"{source}: key 'dagger_world_sampling': bad value {cfg.dagger_world_sampling!r}: "
             "choices are uniform, failures"
         )
-    if cfg.shield_lookahead not in ("velocity", "stop"):
+    if cfg.shield_lookahead not in LOOKAHEADS:
         raise ConfigError(
             f"{source}: key 'shield_lookahead': bad value {cfg.shield_lookahead!r}: "
-            "choices are velocity, stop"
+            f"choices are {', '.join(LOOKAHEADS)}"
         )
     needs = cfg.imitation_teacher == "filter" and cfg.dagger_iterations > 0
     if needs and not (cfg.init_model and cfg.shield):
