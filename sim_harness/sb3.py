@@ -28,6 +28,7 @@ import structlog
 import torch
 from numpy.typing import NDArray
 from stable_baselines3 import DQN as SB3DQN
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
@@ -166,6 +167,10 @@ def train_dqn(
         **dqn_kwargs,
     }
     model = SB3DQN("MultiInputPolicy", venv, **kwargs)
+    if not kwargs.get("tensorboard_log"):
+        # SB3's default logger makes an empty tempdir/SB3-<time> folder on every learn(), even
+        # with nothing to write; a logger with no outputs makes none.
+        model.set_logger(Logger(folder=None, output_formats=[]))
     log.info("sb3_dqn", timesteps=timesteps, n_envs=n_envs, seed=seed)
     model.learn(total_timesteps=timesteps, progress_bar=False)
     return model

@@ -3,6 +3,9 @@ VecEnv's SB3 conventions, and a tiny DQN run that trains and is evaluated."""
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -72,10 +75,17 @@ def test_the_vec_env_reports_the_terminal_observation_and_the_episode_as_sb3_exp
     assert venv.vec.steps.tolist() == [0, 0]  # started anew in the same step
 
 
-def test_sb3_dqn_trains_on_the_env_and_its_greedy_policy_is_evaluated() -> None:
-    """A tiny budget: updates happen (the weights move) and the greedy policy flies the evaluation."""
+def test_sb3_dqn_trains_on_the_env_and_its_greedy_policy_is_evaluated(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A tiny budget: updates happen (the weights move), the greedy policy flies the evaluation,
+    and training leaves no ``SB3-<time>`` folder in the temporary directory (SB3's default
+    logger makes one on every learn())."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
     worlds = [load_world(paper_world_path(i)) for i in (1, 2)]
     model = train_dqn(worlds, timesteps=600, n_envs=8, learning_starts=200, buffer_size=2_000, seed=1)
+    assert not list(tmp_path.glob("SB3-*"))
     assert model.num_timesteps >= 600 and model._n_updates > 0
     rows = evaluate(greedy_fn(model), worlds, 2, seed=1000)
     summary = summarize(rows)
