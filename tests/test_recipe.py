@@ -36,6 +36,7 @@ PRIVILEGED_LAB_HINGE3_ROUND2_F25 = REPO / "recipes" / "privileged-lab-hinge3-rou
 PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES = (
     REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures.yaml"
 )
+SOFT = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -208,6 +209,20 @@ def test_failure_sampling_recipe_is_the_quarter_recipe_with_its_flag() -> None:
     assert recipe.name == "privileged-lab-hinge3-round2-f25-failures"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert recipe.dagger_world_sampling == "failures" and recipe.dagger_filtered_share == 0.25
+
+
+def test_soft_target_recipe_is_the_failure_sampling_recipe_at_temperature_0_3() -> None:
+    """recipes/privileged-lab-hinge3-round2-f25-failures-soft.yaml is the failure-sampling recipe
+    with ``--imitation-temperature-m 0.3`` (the command its first seeds were trained with), its own
+    name."""
+    recipe = cmd_train.config_for(_parse(["--recipe", str(SOFT)]))
+    flags = cmd_train.config_for(
+        _parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES),
+                "--imitation-temperature-m", "0.3"])
+    )
+    assert recipe.name == "privileged-lab-hinge3-round2-f25-failures-soft"
+    assert dataclasses.replace(recipe, name=flags.name) == flags
+    assert recipe.imitation_temperature_m == 0.3 and recipe.dagger_world_sampling == "failures"
 
 
 def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:

@@ -115,6 +115,7 @@ def test_kill_9_of_the_daemon_mid_flight_leaves_a_reviewable_record(tmp_path, vi
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)},  # the killed stand-ins' logs stay in tmp_path
     )
     steps_seen = 0
     try:

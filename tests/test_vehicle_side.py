@@ -245,7 +245,7 @@ def test_stop_ends_every_part(world: Path) -> None:
 
 
 @pytest.mark.slow
-def test_parts_exit_when_the_process_that_started_them_is_killed(world: Path) -> None:
+def test_parts_exit_when_the_process_that_started_them_is_killed(world: Path, tmp_path: Path) -> None:
     code = (
         "import sys, time\n"
         "from sim_harness.vehicle_side import VehicleSide\n"
@@ -253,7 +253,8 @@ def test_parts_exit_when_the_process_that_started_them_is_killed(world: Path) ->
         "print(*[p.process.pid for p in side.parts.values()], flush=True)\n"
         "time.sleep(60)\n"
     )
-    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "TMPDIR": str(tmp_path)})  # its run dir, left behind
     assert parent.stdout is not None
     pids = [int(v) for v in parent.stdout.readline().split()]
     assert len(pids) == 2
