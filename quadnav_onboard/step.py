@@ -49,6 +49,7 @@ __all__ = [
     "outcome_codes",
     "primitive_targets",
     "push_history",
+    "step_fractions",
     "step_inputs",
 ]
 
@@ -152,6 +153,13 @@ def primitive_targets(
     pos = np.asarray(start_world_m, dtype=np.float64) + body_to_world(bezier_position(ctrl, u), yaw)
     vel = body_to_world(bezier_velocity(ctrl, u, prims.duration_s), yaw)
     return pos, vel
+
+
+def step_fractions(duration_s: float, dt_s: float) -> NDArray[np.float64]:
+    """The fractions ``u`` (K, 1) of a step at which a primitive of ``duration_s`` is flown with a
+    tracking step of ``dt_s``: ``1/K, 2/K, ..., 1``, K = ``round(duration_s / dt_s)``, at least 1."""
+    k = max(1, round(duration_s / dt_s))
+    return (np.arange(1, k + 1, dtype=np.float64) / k)[:, None]
 
 
 def outcome_codes(

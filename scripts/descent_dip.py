@@ -32,12 +32,11 @@ def lowest_after_descents(scale_m: float) -> dict[str, dict[str, float]]:
     """For each kind of second primitive (down, level, up), the least and the greatest drop (m)
     below the start over every descent followed by every primitive of that kind."""
     from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
-    from quadnav_onboard.step import primitive_targets
+    from quadnav_onboard.step import primitive_targets, step_fractions
     from sim_harness.quad import QuadParams, QuadState, track
 
     prims, q = PrimitiveSet(scale_m=scale_m), QuadParams()
-    k = max(1, round(prims.duration_s / q.dt_s))  # as the env samples a step
-    u = (np.arange(1, k + 1) / k)[:, None]
+    u = step_fractions(prims.duration_s, q.dt_s)  # as the env samples a step
     descents = [a for a, d in enumerate(DEFAULT_DIRECTIONS) if d[2] < 0]
     first = np.repeat(descents, prims.n_actions)  # every descent, then every primitive after it
     second = np.tile(np.arange(prims.n_actions), len(descents))

@@ -46,6 +46,7 @@ from quadnav_onboard.step import (
     finish_step,
     primitive_targets,
     push_history,
+    step_fractions,
     step_inputs,
 )
 from sim_harness.collision import clearance_m, collides, sweep_collides
@@ -147,8 +148,7 @@ class VecQuadNavEnv:
         if world_weights is not None:
             self.set_world_weights(world_weights)
         self.rng = np.random.default_rng(seed)
-        n_sub = max(1, round(self.prims.duration_s / config.quad.dt_s))
-        self._u = (np.arange(1, n_sub + 1, dtype=np.float64) / n_sub)[:, None]  # (K, 1)
+        self._u = step_fractions(self.prims.duration_s, config.quad.dt_s)  # (K, 1)
         n, kd, kp = self.n_envs, config.depth_history, config.position_history
         self.world_idx = np.zeros(n, dtype=np.int64)
         self.pos_m = np.zeros((n, 3))

@@ -22,6 +22,7 @@ from quadnav_onboard.shield import (
     shield_config_from_meta,
     view_points_heading,
 )
+from quadnav_onboard.step import primitive_targets, step_fractions
 
 ON = ShieldConfig(enabled=True)
 PRIMS = PrimitiveSet()
@@ -292,8 +293,7 @@ def test_the_predicted_path_is_the_simulated_vehicles_path_within_a_few_centimet
     v0 = np.array([[1.0, 1.0, 0.0]])
     flown = primitive_samples(PRIMS, np.zeros((1, 3)), v0, np.zeros(1), ON, np.zeros((1, 3)), v0)
     q = QuadParams()
-    k = round(PRIMS.duration_s / q.dt_s)
-    u = (np.arange(1, k + 1) / k)[:, None]
+    u = step_fractions(PRIMS.duration_s, q.dt_s)
     for a in range(PRIMS.n_actions):
         ctrl = PRIMS.control_points(np.array([a]), v0)
         _, trail = track(
@@ -519,14 +519,12 @@ def test_the_stop_look_ahead_is_the_hover_the_next_decision_can_choose():
 def test_the_stop_after_a_descent_is_flown_as_the_simulated_vehicle_flies_it():
     """The tracked stop (filter's model) and the sim's quad agree on the lowest point of a 1 m
     descent followed by a hover, within 5 cm; it dips below the descent's end."""
-    from quadnav_onboard.step import primitive_targets
     from sim_harness.quad import QuadParams, QuadState, track
 
     start, v0, yaw = np.array([[0.0, 0.0, 2.0]]), np.zeros((1, 3)), np.zeros(1)
     predicted = primitive_samples(PRIMS, start, v0, yaw, STOP, start, v0)[0, DOWN_FORWARD]
     q = QuadParams()
-    k = round(PRIMS.duration_s / q.dt_s)
-    u = (np.arange(1, k + 1) / k)[:, None]
+    u = step_fractions(PRIMS.duration_s, q.dt_s)
     targets, target_vel = primitive_targets(PRIMS, [DOWN_FORWARD], start, v0, yaw, u)
     state, first = track(QuadState(start.copy(), v0.copy()), targets, target_vel, q)
     targets, target_vel = primitive_targets(PRIMS, [HOVER], targets[-1], target_vel[-1], yaw, u)

@@ -101,3 +101,11 @@ def test_a_record_row_and_its_plain_values():
     assert rec.n == 2 and rec.row(1).n == 1
     d = rec.row(1).as_dict()
     assert d["pos_world_m"] == [2.0, 0.0, 2.0] and d["shield_allowed"] is None and d["outcome"] == 0
+
+
+def test_step_fractions_end_at_the_step_s_end_and_are_never_empty() -> None:
+    """1 s at 0.02 s: 50 fractions 0.02 ... 1.0; a step shorter than half a tick still has one."""
+    u = step.step_fractions(1.0, 0.02)
+    assert u.shape == (50, 1) and u[0, 0] == pytest.approx(0.02) and u[-1, 0] == 1.0
+    assert np.all(np.diff(u[:, 0]) > 0)
+    assert step.step_fractions(0.005, 0.02).tolist() == [[1.0]]

@@ -38,7 +38,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from quadnav_onboard.step import primitive_targets, step_inputs
+from quadnav_onboard.step import primitive_targets, step_fractions, step_inputs
 from sim_harness.collision import clearance_m
 from sim_harness.quad import QuadState, track
 from sim_harness.world import World
@@ -322,8 +322,7 @@ class Teacher:
             yaw[sel] = step_inputs(env.worlds[w].path, steps[sel], prims.duration_s, pos[sel]).yaw_rad
         rep = lambda x: np.repeat(x, a_n, axis=0)  # noqa: E731
         actions = np.tile(np.arange(a_n), m)
-        n_sub = max(1, round(prims.duration_s / env.config.quad.dt_s))  # as the env samples it
-        u = (np.arange(1, n_sub + 1, dtype=np.float64) / n_sub)[:, None]
+        u = step_fractions(prims.duration_s, env.config.quad.dt_s)  # as the env samples it
         targets, target_vel = primitive_targets(prims, actions, rep(cmd_pos), rep(cmd_vel), rep(yaw), u)
         state, trail = track(QuadState(rep(pos), rep(vel)), targets, target_vel, env.config.quad)
         keep = np.unique(np.r_[np.arange(0, trail.shape[0], every), trail.shape[0] - 1])
