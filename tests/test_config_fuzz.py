@@ -252,6 +252,7 @@ def test_every_numeric_flight_field_refuses_or_means_each_extreme(tmp_path: Path
 @pytest.mark.parametrize("key", [k for k, _ in TRAIN_LEAVES], ids=_dotted)
 def test_every_numeric_training_field_refuses_or_means_each_extreme(key: tuple) -> None:
     base = TrainConfig().to_dict()
+    base["imitation_filter_scales"] = [1.0]  # an empty list by default: give it one to perturb
     source = "run/config.json"
     problems = []
     for kind, value in VALUES.items():

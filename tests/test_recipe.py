@@ -37,6 +37,8 @@ PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES = (
     REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures.yaml"
 )
 SOFT = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft.yaml"
+FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-free1m.yaml"
+SOFT_FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-free1m.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -223,6 +225,19 @@ def test_soft_target_recipe_is_the_failure_sampling_recipe_at_temperature_0_3() 
     assert recipe.name == "privileged-lab-hinge3-round2-f25-failures-soft"
     assert dataclasses.replace(recipe, name=flags.name) == flags
     assert recipe.imitation_temperature_m == 0.3 and recipe.dagger_world_sampling == "failures"
+
+
+@pytest.mark.parametrize(("recipe", "base"), [
+    (FREE_1M, PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES), (SOFT_FREE_1M, SOFT),
+])
+def test_free_1m_recipes_are_their_bases_with_the_filters_lessons_at_0_5_m_only(recipe, base) -> None:
+    """The two ``-free1m`` recipes are their bases with ``--imitation-filter-scales 0.5``, their own
+    names."""
+    got = cmd_train.config_for(_parse(["--recipe", str(recipe)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(base), "--imitation-filter-scales", "0.5"]))
+    assert got.name == recipe.stem
+    assert dataclasses.replace(got, name=flags.name) == flags
+    assert got.imitation_filter_scales == (0.5,) and got.imitation_scales == (1.0, 0.5)
 
 
 def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:

@@ -191,6 +191,13 @@ class TrainConfig:
     imitation_scales: tuple[Annotated[float, pydantic.Field(gt=0, le=5)], ...] = (1.0,)
     """Primitive scales (m) DAgger flies, each with its own envs (the product flies 0.5 m; the
     paper trains 1 m). Range: (0, 5] each."""
+    imitation_filter_scales: tuple[Annotated[float, pydantic.Field(gt=0, le=5)], ...] = ()
+    """The scales of ``imitation_scales`` at which the imitation learns the filter's lessons: the
+    privileged teacher chooses among what the filter allows (``teacher_respect_filter``) and the
+    hinge learns its verdicts (``imitation_veto_weight``). At the other scales the teacher plans
+    on the true world alone and no verdicts are kept, so the network learns there to fly without
+    the filter. The lab's layouts always learn them. Empty: every scale. Range: each one of
+    ``imitation_scales``."""
     imitation_only: bool = False
     """With ``dagger_iterations`` > 0: stop after the imitation (no RL episodes; ``episodes``
     is then unused)."""
@@ -331,6 +338,12 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'teacher_respect_filter': bad value True: the privileged teacher "
             "respects the filter's verdicts: set imitation_teacher: privileged and shield: true"
+        )
+    stray = [s for s in cfg.imitation_filter_scales if s not in cfg.imitation_scales]
+    if stray:
+        raise ConfigError(
+            f"{source}: key 'imitation_filter_scales': bad value {list(cfg.imitation_filter_scales)!r}: "
+            f"{stray!r} not among imitation_scales {list(cfg.imitation_scales)!r}"
         )
     if cfg.imitation_veto_weight > 0 and not cfg.shield:
         raise ConfigError(

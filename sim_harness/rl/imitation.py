@@ -163,19 +163,22 @@ def collect(
     iteration: int,
     filtered_share: float = 0.0,
     curriculum: WorldCurriculum | None = None,
+    keep_verdicts: bool = True,
 ) -> dict[str, int]:
     """Fly ``episodes`` episodes in ``env`` (auto-reset) with the β-mixture of teacher and network,
     adding every visited state with the teacher's label to ``data``; returns the outcome counts of
     the episodes (those the network flew when β = 0). The first ``filtered_share`` of the envs fly
     the network behind the env's filter (its ``allowed``), as the product does; the rest alone.
-    ``curriculum`` records each counted episode's world and outcome."""
+    ``curriculum`` records each counted episode's world and outcome. ``keep_verdicts``: the
+    filter's verdicts are kept with the labels (for the hinge); without, every primitive counts
+    as allowed there."""
     filtered = np.arange(env.n_envs) < round(filtered_share * env.n_envs)
     counts: dict[str, int] = {}
     finished = 0
     depth, rel = env.depth, env.rel
     while finished < episodes:
         target, actions = teacher.label(env, depth, rel, temperature_m)
-        data.add(depth, rel, target, iteration, env.allowed)
+        data.add(depth, rel, target, iteration, env.allowed if keep_verdicts else None)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
             if own.any():
@@ -278,6 +281,8 @@ class DaggerTask:
     worlds: Sequence[World]
     teacher: Labeller
     make_env: Callable[..., VecQuadNavEnv] = VecQuadNavEnv
+    filter_verdicts: bool = True
+    """Keep the filter's verdicts with this task's labels, for the hinge (``veto_weight``)."""
 
 
 def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSettings, n_envs: int) -> list[dict]:
@@ -315,7 +320,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         agent.q.eval()
         for env, task, curriculum in zip(envs, tasks, curricula, strict=True):
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
-                             s.filtered_share, curriculum)
+                             s.filtered_share, curriculum, task.filter_verdicts)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
                 "worlds": len(task.worlds),
