@@ -84,6 +84,11 @@ def test_checkpoint_round_trips_with_its_training_settings(tmp_path) -> None:
     assert ckpt.meta["seed"] == 3
     assert ckpt.meta["train_config"]["episodes"] == 4
     assert ckpt.meta["git_commit"]
+    # where the run's numerics came from: a recipe is bit for bit only on the same platform
+    plat = ckpt.meta["platform"]
+    assert plat["torch"] == torch.__version__ and plat["numpy"] == np.__version__
+    assert plat["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert plat["cpu"] and plat["machine"]
     state = torch.load(result.run_dir / "state.pt", weights_only=True)
     for name, tensor in ckpt.model.state_dict().items():
         assert torch.equal(tensor, state["agent"]["q"][name])

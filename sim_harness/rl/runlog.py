@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import json
+import platform
 import subprocess
 import time
 from collections.abc import Sequence
@@ -23,6 +24,7 @@ __all__ = [
     "METRIC_FIELDS",
     "git_commit",
     "make_run_dir",
+    "platform_info",
     "plot_reward_curve",
     "read_evals",
     "read_metrics",
@@ -76,6 +78,36 @@ def git_commit() -> str:
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return rev + ("-dirty" if dirty else "")
+
+
+def _cpu_model() -> str:
+    """The CPU's model name as the kernel reports it (Linux), else what ``platform`` knows."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def platform_info() -> dict[str, str]:
+    """What training's numerics depend on beyond the code and the seed: the CPU, the kernels
+    torch dispatches to, and the versions of the numeric libraries. A recipe gives the same
+    weights bit for bit only where these agree (docs/results.md, "The recipes")."""
+    import numba
+    import torch
+
+    return {
+        "machine": platform.machine(),
+        "cpu": _cpu_model(),
+        "torch_cpu_capability": str(torch.backends.cpu.get_cpu_capability()),
+        "python": platform.python_version(),
+        "torch": str(torch.__version__),
+        "numpy": str(np.__version__),
+        "numba": str(numba.__version__),
+    }
 
 
 def write_metrics(run_dir: Path, rows: Sequence[dict[str, Any]]) -> None:

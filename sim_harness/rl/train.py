@@ -46,6 +46,7 @@ from sim_harness.rl.replay import NStepAccumulator, PrioritizedReplayBuffer, Rep
 from sim_harness.rl.runlog import (
     git_commit,
     make_run_dir,
+    platform_info,
     plot_reward_curve,
     read_evals,
     read_metrics,
@@ -151,6 +152,7 @@ def _save_model(path: Path, agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfi
         "train_config": cfg.to_dict(),
         "seed": cfg.seed,
         "git_commit": git_commit(),
+        "platform": platform_info(),
         "shield": dataclasses.asdict(env_cfg.shield),
         **extra,
     }
