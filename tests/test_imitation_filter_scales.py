@@ -3,6 +3,8 @@ plans on the true world alone and the hinge sees no verdicts."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,7 @@ from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import load_train_config
 from sim_harness.rl.imitation import Aggregate, collect
-from sim_harness.rl.teacher import Teacher, TeacherConfig
+from sim_harness.rl.teacher import Teacher
 from sim_harness.rl.train import dagger_tasks, env_config_for
 from sim_harness.world import parse_world
 
@@ -37,7 +39,7 @@ def _wall_world():
 
 def _tasks(**keys):
     cfg = load_train_config({**RECIPE, **keys}, "recipe.yaml")
-    return dagger_tasks(DQNAgent(NetworkConfig()), cfg, env_config_for(cfg), [_wall_world()])
+    return dagger_tasks(cfg, env_config_for(cfg), [_wall_world()])
 
 
 def test_outside_the_filter_scales_the_teacher_ignores_the_filter_and_no_verdicts_are_kept() -> None:
@@ -46,7 +48,7 @@ def test_outside_the_filter_scales_the_teacher_ignores_the_filter_and_no_verdict
     assert not by_scale[1.0].teacher.config.respect_filter and not by_scale[1.0].filter_verdicts
     # the rest of the teacher is the recipe's at both scales
     free, kept = by_scale[1.0].teacher.config, by_scale[0.5].teacher.config
-    assert free == TeacherConfig(**{**kept.__dict__, "respect_filter": False})
+    assert free == dataclasses.replace(kept, respect_filter=False)
 
 
 def test_without_filter_scales_every_scale_learns_the_filters_lessons() -> None:
@@ -58,6 +60,15 @@ def test_without_filter_scales_every_scale_learns_the_filters_lessons() -> None:
 def test_a_filter_scale_must_be_one_of_the_imitation_scales() -> None:
     with pytest.raises(ConfigError, match=r"recipe.yaml: key 'imitation_filter_scales'.*0\.25"):
         load_train_config({**RECIPE, "imitation_filter_scales": [0.25]}, "recipe.yaml")
+
+
+def test_filter_scales_need_the_privileged_teacher() -> None:
+    """The filter teacher's labels are the filter's verdicts: it cannot leave the filter out."""
+    filter_recipe = {**RECIPE, "imitation_teacher": "filter", "teacher_respect_filter": False,
+                     "init_model": "quadnav_onboard/models/pgud.pt"}
+    load_train_config(filter_recipe, "recipe.yaml")  # without the key: a valid recipe
+    with pytest.raises(ConfigError, match=r"recipe.yaml: key 'imitation_filter_scales'.*privileged"):
+        load_train_config({**filter_recipe, "imitation_filter_scales": [0.5]}, "recipe.yaml")
 
 
 @pytest.mark.parametrize("keep", [True, False])

@@ -196,7 +196,8 @@ class TrainConfig:
     privileged teacher chooses among what the filter allows (``teacher_respect_filter``) and the
     hinge learns its verdicts (``imitation_veto_weight``). At the other scales the teacher plans
     on the true world alone and no verdicts are kept, so the network learns there to fly without
-    the filter. The lab's layouts always learn them. Empty: every scale. Range: each one of
+    the filter. The lab's layouts always learn them. Needs the privileged teacher (the filter
+    teacher's labels are the filter's verdicts). Empty: every scale. Range: each one of
     ``imitation_scales``."""
     imitation_only: bool = False
     """With ``dagger_iterations`` > 0: stop after the imitation (no RL episodes; ``episodes``
@@ -338,6 +339,12 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'teacher_respect_filter': bad value True: the privileged teacher "
             "respects the filter's verdicts: set imitation_teacher: privileged and shield: true"
+        )
+    if cfg.imitation_filter_scales and cfg.imitation_teacher != "privileged":
+        raise ConfigError(
+            f"{source}: key 'imitation_filter_scales': bad value {list(cfg.imitation_filter_scales)!r}: "
+            "only the privileged teacher can leave the filter out; the filter teacher's labels are "
+            "its verdicts (set imitation_teacher: privileged)"
         )
     stray = [s for s in cfg.imitation_filter_scales if s not in cfg.imitation_scales]
     if stray:

@@ -223,24 +223,21 @@ def _evaluator(
     return scores(rows)
 
 
-def dagger_tasks(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World]
-                 ) -> list[DaggerTask]:
-    """DAgger's task at each of ``imitation_scales``: ``worlds`` rescaled, and the teacher (the
-    filter teacher around ``agent``'s network as it is now, or the privileged one). At a scale
-    outside ``imitation_filter_scales`` (when that is set) the privileged teacher ignores the
-    filter and the task keeps no verdicts for the hinge."""
-    filter_teacher = (
-        FilterTeacher(agent.q, cfg.filter_veto_margin, device=cfg.device)
-        if cfg.imitation_teacher == "filter" else None
-    )
+def dagger_tasks(cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World],
+                 filter_teacher: FilterTeacher | None = None) -> list[DaggerTask]:
+    """DAgger's task at each of ``imitation_scales``: ``worlds`` rescaled, and the teacher
+    (``filter_teacher`` when given, else the privileged one). At a scale outside
+    ``imitation_filter_scales`` (when that is set) the privileged teacher ignores the filter and
+    the task keeps no verdicts for the hinge."""
     tasks = []
     for s in cfg.imitation_scales:
         scaled_cfg, scaled = (
             at_primitive_scale(env_cfg, worlds, s) if s != REFERENCE_SCALE_M else (env_cfg, list(worlds))
         )
         lessons = not cfg.imitation_filter_scales or s in cfg.imitation_filter_scales
-        teacher: Labeller = filter_teacher or Teacher(
-            teacher_config(cfg, respect_filter=cfg.teacher_respect_filter and lessons)
+        teacher: Labeller = (
+            filter_teacher if filter_teacher is not None
+            else Teacher(teacher_config(cfg, respect_filter=cfg.teacher_respect_filter and lessons))
         )
         tasks.append(DaggerTask(scaled_cfg, scaled, teacher, filter_verdicts=lessons))
     return tasks
@@ -253,10 +250,13 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
     filter teacher's expert), over ``worlds`` at each of ``imitation_scales`` and, with ``lab``,
     ``lab_layouts`` layouts of that lab's room under its flight config; writes ``dagger.json`` and
     ``checkpoints/imitation.pt`` in ``run_dir``."""
-    tasks = dagger_tasks(agent, cfg, env_cfg, worlds)
+    filter_teacher = (
+        FilterTeacher(agent.q, cfg.filter_veto_margin, device=cfg.device)
+        if cfg.imitation_teacher == "filter" else None
+    )
+    tasks = dagger_tasks(cfg, env_cfg, worlds, filter_teacher)
     if lab is not None:
-        teacher = tasks[0].teacher if cfg.imitation_teacher == "filter" else None
-        tasks.append(lab_task(cfg, lab, teacher))
+        tasks.append(lab_task(cfg, lab, filter_teacher))
     settings = DaggerSettings(
         iterations=cfg.dagger_iterations, episodes=cfg.dagger_episodes, beta=cfg.dagger_beta,
         epochs=cfg.imitation_epochs, lr=cfg.imitation_lr, temperature_m=cfg.imitation_temperature_m,
