@@ -109,6 +109,7 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.gamma_start", "zero"): "a myopic start of the γ ramp",
     ("train.gamma_end", "zero"): "a myopic end of the γ ramp",
     ("train.max_grad_norm", "zero"): "no gradient clipping",
+    ("train.teacher_release_m", "zero"): "never: the teacher keeps to the filter's verdicts in every state",
     ("train.per_alpha", "zero"): "uniform replay",
     ("train.per_beta_start", "zero"): "no importance-sampling correction at first",
     ("train.keep_every", "zero"): "no kept snapshots",

@@ -66,11 +66,12 @@ def test_the_label_is_the_forward_expert_unless_the_filter_vetoes_forward(tmp_pa
     for wall_x, forward_ok in ((7.5, True), (1.1, False)):
         env = VecQuadNavEnv([_wall_world(wall_x)], 2, seed=0, config=cfg)
         depth, rel = env.reset()
-        target, actions = teacher.label(env, depth, rel, 0.1)
+        target, actions, released = teacher.label(env, depth, rel, 0.1)
         assert bool(env.allowed[:, FORWARD].all()) is forward_ok
         np.testing.assert_array_equal(np.argmax(target, axis=1), actions)
         assert bool(np.all(actions == FORWARD)) is forward_ok
         assert np.all(env.allowed[np.arange(2), actions])
+        assert not released.any()  # the filter teacher's labels are its verdicts
 
 
 def test_the_filter_teacher_needs_the_envs_filter(tmp_path) -> None:

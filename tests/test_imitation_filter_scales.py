@@ -1,5 +1,6 @@
-"""The filter's lessons at some scales only (``imitation_filter_scales``): elsewhere the teacher
-plans on the true world alone and the hinge sees no verdicts."""
+"""Which labels carry the filter's lessons: at some scales only (``imitation_filter_scales``;
+elsewhere the teacher plans on the true world alone and the hinge sees no verdicts), and not in
+the states where the teacher was released from the filter (``teacher_release_m``)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import load_train_config
-from sim_harness.rl.imitation import Aggregate, collect
-from sim_harness.rl.teacher import Teacher
+from sim_harness.rl.imitation import Aggregate, Labels, collect
+from sim_harness.rl.teacher import Teacher, TeacherConfig
 from sim_harness.rl.train import dagger_tasks, env_config_for
 from sim_harness.world import parse_world
 
@@ -71,8 +72,9 @@ def test_filter_scales_need_the_privileged_teacher() -> None:
         load_train_config({**filter_recipe, "imitation_filter_scales": [0.5]}, "recipe.yaml")
 
 
-@pytest.mark.parametrize("keep", [True, False])
-def test_collect_keeps_the_verdicts_only_when_asked(keep: bool) -> None:
+def collect_by_the_panel(teacher, keep: bool = True) -> tuple[Aggregate, np.ndarray]:
+    """Two episodes past the panel of :func:`_wall_world`, the teacher flying: DAgger's aggregate,
+    and what the filter said in each state it holds (rows in the same order)."""
     cfg = EnvConfig(max_steps=6, start_jitter_m=0.0, shield=ShieldConfig(enabled=True))
     env = VecQuadNavEnv([_wall_world()], 2, seed=0, config=cfg)
     env.reset()
@@ -80,17 +82,46 @@ def test_collect_keeps_the_verdicts_only_when_asked(keep: bool) -> None:
     seen = []
     real_add = data.add
 
-    def add(depth, rel, target, iteration, allowed=None):
+    def add(depth, rel, target, iteration, allowed=None, released=None):
         seen.append(np.array(env.allowed))  # what the filter said in that state
-        real_add(depth, rel, target, iteration, allowed)
+        real_add(depth, rel, target, iteration, allowed, released)
 
     data.add = add  # type: ignore[method-assign]
-    collect(env, Teacher(), DQNAgent(NetworkConfig()), 2, 1.0, np.random.default_rng(0), 0.1, data, 0,
+    collect(env, teacher, DQNAgent(NetworkConfig()), 2, 1.0, np.random.default_rng(0), 0.1, data, 0,
             keep_verdicts=keep)
-    said = np.concatenate(seen)
+    return data, np.concatenate(seen)
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_collect_keeps_the_verdicts_only_when_asked(keep: bool) -> None:
+    data, said = collect_by_the_panel(Teacher(), keep)
     assert not said.all()  # the filter vetoed something on the way past the panel
     kept = data.allowed[: len(data)]
     if keep:
         np.testing.assert_array_equal(kept, said)
     else:
         assert kept.all()  # every primitive counts as allowed: the hinge has nothing to learn
+
+
+class _HalfReleased:
+    """The privileged teacher respecting the filter, its labels marked released in env 0 and
+    kept in env 1 (``teacher_release_m`` decides this by the costs; here it is fixed)."""
+
+    loss = "cross_entropy"
+
+    def __init__(self) -> None:
+        self.teacher = Teacher(TeacherConfig(respect_filter=True))
+
+    def label(self, env, depth, rel, temperature_m) -> Labels:
+        targets, actions, _ = self.teacher.label(env, depth, rel, temperature_m)
+        return Labels(targets, actions, np.array([True, False]))
+
+
+def test_a_released_label_keeps_no_verdict_and_the_others_keep_theirs() -> None:
+    data, said = collect_by_the_panel(_HalfReleased())
+    n = len(data)
+    in_env0 = np.arange(n) % 2 == 0  # each step adds env 0's state, then env 1's
+    assert not said[~in_env0].all()  # the filter vetoed something in env 1's states
+    assert data.allowed[:n][in_env0].all()  # released: no verdict
+    np.testing.assert_array_equal(data.allowed[:n][~in_env0], said[~in_env0])
+    assert data.released[:n].tolist() == in_env0.tolist()

@@ -167,7 +167,7 @@ def test_teacher_respecting_the_filter_takes_its_best_allowed_primitive() -> Non
     env.allowed[:] = True
     env.allowed[0, order[:2]] = False
     env.allowed[1, :] = False
-    targets, actions = strict.label(env, None, None, 0.5)
+    targets, actions, _ = strict.label(env, None, None, 0.5)
     assert actions[0] == order[2]  # the best of what the filter allows
     assert actions[1] == np.argmin(costs[1])  # all vetoed: the teacher's own choice, as the product flies it
     assert targets[0, order[:2]].max() < targets[0, order[2]]
@@ -189,10 +189,10 @@ def test_teacher_config_carries_every_teacher_key_of_the_training_config() -> No
     field of the same name; an override wins over the key."""
     cfg = TrainConfig(
         shield=True, imitation_teacher="privileged", teacher_grid_m=0.5, teacher_margin_m=0.3,
-        teacher_lookahead=1, teacher_respect_filter=True,
+        teacher_lookahead=1, teacher_respect_filter=True, teacher_release_m=0.75,
     )
     keys = [f.name for f in dataclasses.fields(TrainConfig) if f.name.startswith("teacher_")]
-    assert len(keys) == 4
+    assert len(keys) == 5
     tc = teacher_config(cfg)
     for key in keys:
         assert getattr(tc, key.removeprefix("teacher_")) == getattr(cfg, key) != getattr(TrainConfig(), key)

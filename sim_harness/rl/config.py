@@ -250,6 +250,12 @@ class TrainConfig:
     teacher_respect_filter: bool = False
     """The privileged teacher chooses among the primitives the env's depth filter allows (it
     prices the vetoed ones as crashes, where the filter allows any); needs ``shield``."""
+    teacher_release_m: Annotated[float, pydantic.Field(ge=0, le=10)] = 0.0
+    """With ``teacher_respect_filter``: in a state where the filter's vetoes raise the teacher's
+    best cost by more than this (metres of its cost; a hold in place costs about one primitive
+    length), the filter boxes it in where the true world has a way on, and the teacher chooses
+    among every primitive there; those states carry no verdicts for the hinge. 0: never.
+    Range: [0, 10]."""
     init_model: str = ""
     """Checkpoint whose weights start the online and target networks (fine-tuning; "" = random
     init). Its network shape must match this config's, except that this config's depth and position
@@ -339,6 +345,12 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'teacher_respect_filter': bad value True: the privileged teacher "
             "respects the filter's verdicts: set imitation_teacher: privileged and shield: true"
+        )
+    if cfg.teacher_release_m > 0 and not cfg.teacher_respect_filter:
+        raise ConfigError(
+            f"{source}: key 'teacher_release_m': bad value {cfg.teacher_release_m!r}: the teacher "
+            "leaves the filter's verdicts aside only where it respects them: set "
+            "teacher_respect_filter: true"
         )
     if cfg.imitation_filter_scales and cfg.imitation_teacher != "privileged":
         raise ConfigError(

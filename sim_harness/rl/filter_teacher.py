@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from quadnav_onboard.policy import masked_argmax
 from sim_harness.env import VecQuadNavEnv
+from sim_harness.rl.imitation import Labels
 
 __all__ = ["FilterTeacher", "veto_targets"]
 
@@ -67,10 +68,12 @@ class FilterTeacher:
 
     def label(
         self, env: VecQuadNavEnv, depth: NDArray, rel: NDArray, temperature_m: float
-    ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
-        """(targets (N, A), the product's actions (N,)) for the env's current states."""
+    ) -> Labels:
+        """Targets (N, A) and the product's actions (N,) for the env's current states; every
+        label carries the filter's verdicts."""
         del temperature_m  # the labels are Q-values, not a distribution
         if env.memory is None:
             raise ValueError("the filter teacher needs the env's filter on (EnvConfig.shield.enabled)")
         q = self.q_values(depth, rel)
-        return veto_targets(q, env.allowed, self.veto_margin), masked_argmax(q, env.allowed)
+        return Labels(veto_targets(q, env.allowed, self.veto_margin), masked_argmax(q, env.allowed),
+                      np.zeros(q.shape[0], dtype=bool))

@@ -29,7 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import structlog
@@ -42,7 +42,7 @@ from sim_harness.rl.agent import DQNAgent
 from sim_harness.world import World
 
 __all__ = [
-    "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "WorldCurriculum", "collect", "dagger",
+    "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "Labels", "WorldCurriculum", "collect", "dagger",
     "fit", "lr_at", "margin_loss", "veto_loss",
 ]
 
@@ -88,6 +88,8 @@ class Aggregate:
         self.target = np.zeros((capacity, n_actions), dtype=np.float32)
         self.allowed = np.ones((capacity, n_actions), dtype=bool)
         """The primitives the env's depth safety filter allowed in each state (all when it is off)."""
+        self.released = np.zeros(capacity, dtype=bool)
+        """The states whose labels leave the filter's verdicts aside (``TeacherConfig.release_m``)."""
         self.iteration = np.zeros(capacity, dtype=np.int32)
         """The DAgger iteration each row was collected in."""
         self.size = 0
@@ -97,7 +99,7 @@ class Aggregate:
         return self.size
 
     def add(self, depth: NDArray, rel: NDArray, target: NDArray, iteration: int,
-            allowed: NDArray[np.bool_] | None = None) -> None:
+            allowed: NDArray[np.bool_] | None = None, released: NDArray[np.bool_] | None = None) -> None:
         n = depth.shape[0]
         if not (rel.shape[0] == n and target.shape[0] == n):
             raise ValueError("depth, rel and target need the same number of rows")
@@ -108,6 +110,7 @@ class Aggregate:
         self.rel[idx] = rel
         self.target[idx] = target
         self.allowed[idx] = True if allowed is None else allowed
+        self.released[idx] = False if released is None else released
         self.iteration[idx] = iteration
         self._next = int((self._next + n) % self.capacity)
         self.size = min(self.capacity, self.size + n)
@@ -141,6 +144,17 @@ class WorldCurriculum:
         return weights
 
 
+class Labels(NamedTuple):
+    """A teacher's labels for N states."""
+
+    targets: NDArray[np.float32]
+    """What the student fits (N, A): a distribution, or Q-values (the teacher's ``loss``)."""
+    actions: NDArray[np.int64]
+    """The teacher's own primitive in each state (N,)."""
+    released: NDArray[np.bool_]
+    """The states (N,) whose labels leave the filter's verdicts aside: the hinge skips them."""
+
+
 class Labeller(Protocol):
     """A teacher: labels for every env's current state, and the actions it would fly there."""
 
@@ -148,7 +162,7 @@ class Labeller(Protocol):
     """"cross_entropy" (labels are distributions) or "huber" (labels are Q-values)."""
 
     def label(self, env: VecQuadNavEnv, depth: NDArray, rel: NDArray, temperature_m: float
-              ) -> tuple[NDArray[np.float32], NDArray[np.int64]]: ...
+              ) -> Labels: ...
 
 
 def collect(
@@ -177,8 +191,12 @@ def collect(
     finished = 0
     depth, rel = env.depth, env.rel
     while finished < episodes:
-        target, actions = teacher.label(env, depth, rel, temperature_m)
-        data.add(depth, rel, target, iteration, env.allowed if keep_verdicts else None)
+        target, actions, released = teacher.label(env, depth, rel, temperature_m)
+        verdicts = None
+        if keep_verdicts:
+            verdicts = np.array(env.allowed, dtype=bool)
+            verdicts[released] = True  # a label that leaves the filter aside: no verdict
+        data.add(depth, rel, target, iteration, verdicts, released)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
             if own.any():
@@ -325,6 +343,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
                 "worlds": len(task.worlds),
                 "outcomes": counts, "dataset": len(data),
+                "released": int(data.released[:len(data)].sum()),
             })
             if curriculum is not None:
                 weights = curriculum.next_weights()
@@ -336,6 +355,6 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["wall_s"] = round(time.monotonic() - t0, 2)
         log.info("dagger iteration", iteration=it, beta=round(beta, 4), dataset=len(data),
-                 loss=round(loss, 4), agreement=round(agreement, 3),
+                 loss=round(loss, 4), agreement=round(agreement, 3), released=records[-1]["released"],
                  outcomes=[r["outcomes"] for r in records[-len(envs):]], wall_s=records[-1]["wall_s"])
     return records

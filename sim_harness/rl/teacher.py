@@ -41,14 +41,15 @@ from numpy.typing import NDArray
 from quadnav_onboard.step import primitive_targets, step_fractions, step_inputs
 from sim_harness.collision import clearance_m
 from sim_harness.quad import QuadState, track
+from sim_harness.rl.imitation import Labels
 from sim_harness.world import World
 
 if TYPE_CHECKING:
     from sim_harness.rl.config import TrainConfig
 
 __all__ = [
-    "CostField", "Teacher", "TeacherConfig", "TeacherPilot", "cost_field", "soft_targets",
-    "teacher_config", "vetoed_as_crashes",
+    "CostField", "Teacher", "TeacherConfig", "TeacherPilot", "cost_field", "released_by",
+    "soft_targets", "teacher_config", "vetoed_as_crashes",
 ]
 
 UNREACHABLE = 1.0e4
@@ -82,6 +83,11 @@ class TeacherConfig:
     respect_filter: bool = False
     """Price the primitives the env's depth filter vetoes (it sees only what the vehicle saw) as
     crashes, where it allows any: the teacher then chooses among what the flown product allows."""
+    release_m: float = 0.0
+    """With ``respect_filter``: in a state where the filter's vetoes raise the teacher's best cost
+    by more than this, the filter boxes it in where the true world has a way on, and the teacher
+    chooses there among every primitive (those labels carry no verdicts for the hinge). A hold in
+    place costs about one primitive length of progress. 0: never."""
 
     def __post_init__(self) -> None:
         for name in ("grid_m", "comfort_m", "margin_m", "max_deviation_m", "goal_radius_m"):
@@ -96,6 +102,10 @@ class TeacherConfig:
             raise ValueError(f"TeacherConfig.crash_cost: bad value {self.crash_cost!r}: must be > 0")
         if self.lookahead not in (1, 2):
             raise ValueError(f"TeacherConfig.lookahead: bad value {self.lookahead!r}: 1 or 2")
+        if not (math.isfinite(self.release_m) and self.release_m >= 0):
+            raise ValueError(
+                f"TeacherConfig.release_m: bad value {self.release_m!r}: must be finite and >= 0"
+            )
 
 
 @numba.njit(cache=True)
@@ -236,6 +246,13 @@ def vetoed_as_crashes(costs: NDArray[np.float64], allowed: NDArray[np.bool_], cr
     return costs + crash_cost * vetoed
 
 
+def released_by(costs: NDArray[np.float64], chosen: NDArray[np.float64], release_m: float
+                ) -> NDArray[np.bool_]:
+    """The rows (N,) where pricing the filter's vetoes (``chosen``, from ``costs``, both (N, A))
+    raises the best cost by more than ``release_m``: the filter boxes the teacher in there."""
+    return chosen.min(axis=1) - costs.min(axis=1) > release_m
+
+
 class Teacher:
     """Labels the states of a :class:`~sim_harness.env.VecQuadNavEnv` with the TRUE geometry.
 
@@ -250,11 +267,11 @@ class Teacher:
         self.config = config
         self._fields: dict[tuple[int, float], CostField] = {}
 
-    def label(self, env, depth: NDArray, rel: NDArray, temperature_m: float
-              ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
-        """(soft targets (N, A), the teacher's actions (N,)) for every env of ``env``."""
-        costs = self.choice_costs(env, np.arange(env.n_envs))
-        return soft_targets(costs, temperature_m), np.argmin(costs, axis=1)
+    def label(self, env, depth: NDArray, rel: NDArray, temperature_m: float) -> Labels:
+        """Soft targets (N, A), the teacher's actions (N,) and the states where it left the
+        filter's verdicts aside (``release_m``), for every env of ``env``."""
+        costs, released = self._choice(env, np.arange(env.n_envs))
+        return Labels(soft_targets(costs, temperature_m), np.argmin(costs, axis=1), released)
 
     def field(self, world: World, radius_m: float) -> CostField:
         key = (id(world.geometry), float(radius_m))
@@ -290,15 +307,26 @@ class Teacher:
 
     def choice_costs(self, env, ids: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
         """:meth:`action_costs`, with the filter's vetoes priced as crashes when the teacher
-        respects the filter (``TeacherConfig.respect_filter``)."""
+        respects the filter (``TeacherConfig.respect_filter``), except where they cost it more
+        than ``TeacherConfig.release_m``."""
+        return self._choice(env, ids)[0]
+
+    def _choice(self, env, ids: NDArray[np.int64] | None
+                ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """(:meth:`choice_costs`, the rows where the teacher left the filter's vetoes aside)."""
         ids = np.flatnonzero(~env.done) if ids is None else np.asarray(ids, dtype=np.int64)
         costs = self.action_costs(env, ids)
+        released = np.zeros(len(ids), dtype=bool)
         if not self.config.respect_filter:
-            return costs
+            return costs, released
         if env.memory is None:
             raise ValueError("the teacher respects the filter only with the env's filter on "
                              "(EnvConfig.shield.enabled)")
-        return vetoed_as_crashes(costs, np.asarray(env.allowed)[ids], self.config.crash_cost)
+        chosen = vetoed_as_crashes(costs, np.asarray(env.allowed)[ids], self.config.crash_cost)
+        if self.config.release_m > 0:
+            released = released_by(costs, chosen, self.config.release_m)
+            chosen[released] = costs[released]
+        return chosen, released
 
     def labels(self, env, ids: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
         """The teacher's primitive (the arg-min of :meth:`choice_costs`) for the envs ``ids``."""
