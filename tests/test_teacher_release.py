@@ -44,6 +44,7 @@ def test_the_teacher_leaves_the_filter_aside_only_where_it_boxes_it_in() -> None
     env = _filtered_env(2)
     plain = Teacher()
     costs = plain.action_costs(env, np.arange(2))
+    np.testing.assert_allclose(costs[0], costs[1])  # one state twice: one ranking serves both
     order = np.argsort(costs[0])
     # env 0: the filter allows only the teacher's worst primitive; env 1: all but its best
     env.allowed[:] = True
