@@ -15,7 +15,7 @@ from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import load_train_config
-from sim_harness.rl.imitation import Aggregate, Labels, collect
+from sim_harness.rl.imitation import Aggregate, DaggerSettings, DaggerTask, Labels, collect, dagger
 from sim_harness.rl.teacher import Teacher, TeacherConfig
 from sim_harness.rl.train import dagger_tasks, env_config_for
 from sim_harness.world import parse_world
@@ -125,3 +125,31 @@ def test_a_released_label_keeps_no_verdict_and_the_others_keep_theirs() -> None:
     assert data.allowed[:n][in_env0].all()  # released: no verdict
     np.testing.assert_array_equal(data.allowed[:n][~in_env0], said[~in_env0])
     assert data.released[:n].tolist() == in_env0.tolist()
+
+
+class _AllReleased(_HalfReleased):
+    """As :class:`_HalfReleased`, every label marked released."""
+
+    def label(self, env, depth, rel, temperature_m) -> Labels:
+        targets, actions, _ = self.teacher.label(env, depth, rel, temperature_m)
+        return Labels(targets, actions, np.ones(env.n_envs, dtype=bool))
+
+
+def test_dagger_counts_each_task_s_released_labels_past_the_aggregate_s_ring() -> None:
+    """Each record counts the states its task labelled in its iteration and the released ones
+    among them, kept when the aggregate's ring has overwritten them (its ``released`` column
+    alone cannot split the count between tasks, nor keep it)."""
+    cfg = EnvConfig(max_steps=6, start_jitter_m=0.0, shield=ShieldConfig(enabled=True))
+    tasks = [DaggerTask(cfg, [_wall_world()], _AllReleased()),
+             DaggerTask(cfg, [_wall_world()], Teacher(TeacherConfig(respect_filter=True)))]
+    settings = DaggerSettings(iterations=2, episodes=2, beta=1.0, epochs=0.1, lr=1e-3, temperature_m=0.1,
+                              batch_size=4, buffer=16, seed=0)
+    records = dagger(DQNAgent(NetworkConfig()), tasks, settings, n_envs=2)
+    assert [r["iteration"] for r in records] == [0, 0, 1, 1]
+    released_task, kept_task = records[0::2], records[1::2]
+    assert all(r["labelled"] >= 2 for r in records)  # two envs, at least one step each
+    assert all(r["labelled_released"] == r["labelled"] for r in released_task)
+    assert all(r["labelled_released"] == 0 for r in kept_task)
+    assert sum(r["labelled"] for r in records) > settings.buffer  # the ring has overwritten rows
+    assert records[-1]["dataset"] == settings.buffer
+    assert records[-1]["released"] < sum(r["labelled_released"] for r in released_task)

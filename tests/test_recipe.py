@@ -39,6 +39,7 @@ PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES = (
 SOFT = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft.yaml"
 FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-free1m.yaml"
 SOFT_FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-free1m.yaml"
+SOFT_RELEASE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -238,6 +239,18 @@ def test_free_1m_recipes_are_their_bases_with_the_filters_lessons_at_0_5_m_only(
     assert got.name == recipe.stem
     assert dataclasses.replace(got, name=flags.name) == flags
     assert got.imitation_filter_scales == (0.5,) and got.imitation_scales == (1.0, 0.5)
+
+
+def test_release_recipe_is_the_soft_recipe_with_the_teacher_released_at_0_75_m() -> None:
+    """recipes/privileged-lab-hinge3-round2-f25-failures-soft-release.yaml is the soft recipe with
+    ``--teacher-release-m 0.75`` (the command its first seeds were trained with), its own name; the
+    teacher still respects the filter, which the release needs."""
+    got = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(SOFT), "--teacher-release-m", "0.75"]))
+    assert got.name == SOFT_RELEASE.stem
+    assert dataclasses.replace(got, name=flags.name) == flags
+    assert got.teacher_release_m == 0.75 and got.teacher_respect_filter
+    assert got.imitation_temperature_m == 0.3
 
 
 def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:

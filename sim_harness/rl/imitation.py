@@ -94,6 +94,10 @@ class Aggregate:
         """The DAgger iteration each row was collected in."""
         self.size = 0
         self._next = 0
+        self.added = 0
+        """Rows ever added, those the ring has since overwritten included."""
+        self.added_released = 0
+        """Of those, the released ones."""
 
     def __len__(self) -> int:
         return self.size
@@ -114,6 +118,8 @@ class Aggregate:
         self.iteration[idx] = iteration
         self._next = int((self._next + n) % self.capacity)
         self.size = min(self.capacity, self.size + n)
+        self.added += n
+        self.added_released += 0 if released is None else int(np.count_nonzero(released))
 
 
 class WorldCurriculum:
@@ -306,7 +312,9 @@ class DaggerTask:
 def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSettings, n_envs: int) -> list[dict]:
     """Run DAgger on ``agent.q`` over ``tasks`` (e.g. one per primitive scale, and a lab's
     layouts under its flight config); returns one record per iteration and task (outcomes,
-    dataset size, loss, wall time). Every task's teacher must fit by the same loss."""
+    dataset size, the released states in the aggregate, the states this task labelled in this
+    iteration and how many of them its teacher released, loss, wall time). Every task's teacher
+    must fit by the same loss."""
     s = settings
     if not tasks:
         raise ValueError("dagger needs at least one task")
@@ -337,6 +345,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
             group["lr"] = lr_at(s, it)
         agent.q.eval()
         for env, task, curriculum in zip(envs, tasks, curricula, strict=True):
+            added, added_released = data.added, data.added_released
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
                              s.filtered_share, curriculum, task.filter_verdicts)
             records.append({
@@ -344,6 +353,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
                 "worlds": len(task.worlds),
                 "outcomes": counts, "dataset": len(data),
                 "released": int(data.released[:len(data)].sum()),
+                "labelled": data.added - added, "labelled_released": data.added_released - added_released,
             })
             if curriculum is not None:
                 weights = curriculum.next_weights()
