@@ -5,6 +5,8 @@ verdicts into DAgger's aggregate is tested with the other verdict tests
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,22 +14,15 @@ from quadnav_onboard.shield import ShieldConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.config import ConfigError, load_train_config
 from sim_harness.rl.teacher import Teacher, TeacherConfig, released_by
-from sim_harness.world import parse_world
+from sim_harness.world import load_world
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def _open_world():
-    return parse_world({
-        "name": "open",
-        "path": {"waypoints": [[0.0, 0.0, 2.0], [20.0, 0.0, 2.0]], "speed_m_s": 1.0},
-        "bounds": {"floor_z": 0.0, "ceiling_z": 4.0},
-        "obstacles": [],
-    })
-
-
-def _filtered_env(n: int) -> VecQuadNavEnv:
-    env = VecQuadNavEnv([_open_world()], n, seed=0, autoreset=False,
+def _filtered_env(world_file: Path, n: int) -> VecQuadNavEnv:
+    """``n`` envs of ``world_file`` with the filter on, all at its start."""
+    world = load_world(world_file)
+    env = VecQuadNavEnv([world], n, seed=0, autoreset=False,
                         config=EnvConfig(start_jitter_m=0.0, shield=ShieldConfig(enabled=True)))
     env.reset()
     return env
@@ -40,8 +35,9 @@ def test_released_where_the_vetoes_cost_more_than_the_threshold() -> None:
     assert released_by(costs, chosen, 2.5).tolist() == [False, False, False]
 
 
-def test_the_teacher_leaves_the_filter_aside_only_where_it_boxes_it_in() -> None:
-    env = _filtered_env(2)
+def test_the_teacher_leaves_the_filter_aside_only_where_it_boxes_it_in(tmp_path: Path,
+                                                                       straight_world) -> None:
+    env = _filtered_env(straight_world(tmp_path, 20.0, height_m=2.0), 2)  # a free 20 m path at 2 m
     plain = Teacher()
     costs = plain.action_costs(env, np.arange(2))
     np.testing.assert_allclose(costs[0], costs[1])  # one state twice: one ranking serves both

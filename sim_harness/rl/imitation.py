@@ -198,10 +198,8 @@ def collect(
     depth, rel = env.depth, env.rel
     while finished < episodes:
         target, actions, released = teacher.label(env, depth, rel, temperature_m)
-        verdicts = None
-        if keep_verdicts:
-            verdicts = np.array(env.allowed, dtype=bool)
-            verdicts[released] = True  # a label that leaves the filter aside: no verdict
+        # a label that leaves the filter aside carries no verdict: every primitive counts as allowed
+        verdicts = np.where(released[:, None], True, env.allowed) if keep_verdicts else None
         data.add(depth, rel, target, iteration, verdicts, released)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
