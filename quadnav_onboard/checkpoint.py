@@ -92,7 +92,7 @@ def load_checkpoint(path: str | Path, expect: NetworkConfig | None = None) -> Ch
         raise CheckpointError(f"{path}: bad 'network' section {net_dict!r}")
     try:
         net_cfg = NetworkConfig(**net_dict)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise CheckpointError(f"{path}: bad 'network' section: {exc}") from exc
     if expect is not None and net_cfg != expect:
         raise CheckpointError(f"{path}: network {net_cfg} does not match the expected {expect}")

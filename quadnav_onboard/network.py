@@ -7,7 +7,8 @@ last layer. All hidden layers use ReLU. With the defaults this has 73,946 parame
 
 Options (all off by default = the paper): ``depth_history`` stacks the last k depth frames as
 input channels; ``position_history`` feeds the last k relative positions to each sub-lane;
-``dueling`` splits the head's last layer into value and advantage streams.
+``dueling`` splits the head's last layer into value and advantage streams; ``width`` multiplies
+every hidden layer's size (its channels and units), the inputs and outputs staying as they are.
 """
 
 from __future__ import annotations
@@ -39,9 +40,25 @@ class NetworkConfig:
     """Relative positions fed to each position sub-lane (1 = the paper)."""
     dueling: bool = False
     """Dueling head (value + advantage) instead of the paper's plain head."""
+    width: int = 1
+    """Every hidden layer's size times this (1 = the paper). Range: 1-4."""
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.width, int) and 1 <= self.width <= 4):
+            raise ValueError(f"network width must be an integer in 1-4, got {self.width!r}")
 
     def to_dict(self) -> dict[str, object]:
-        return asdict(self)
+        """The config as a checkpoint stores it; ``width`` only where it is not the paper's, so a
+        checkpoint of the paper's widths reads the same in builds that predate the key."""
+        d = asdict(self)
+        if self.width == 1:
+            del d["width"]
+        return d
+
+    @property
+    def n_features(self) -> int:
+        """Size of the depth lane's output (:meth:`DQN.depth_features`)."""
+        return 64 * self.width
 
 
 class DQN(nn.Module):
@@ -56,36 +73,36 @@ class DQN(nn.Module):
     def __init__(self, config: NetworkConfig = NetworkConfig()) -> None:
         super().__init__()
         self.config = config
-        k_d, k_p = config.depth_history, config.position_history
+        k_d, k_p, w = config.depth_history, config.position_history, config.width
         self.depth_lane = nn.Sequential(
-            nn.Conv2d(k_d, 8, kernel_size=10, stride=2),
+            nn.Conv2d(k_d, 8 * w, kernel_size=10, stride=2),
             nn.ReLU(),
-            nn.Conv2d(8, 16, kernel_size=6),
+            nn.Conv2d(8 * w, 16 * w, kernel_size=6),
             nn.ReLU(),
-            nn.Conv2d(16, 32, kernel_size=3),
+            nn.Conv2d(16 * w, 32 * w, kernel_size=3),
             nn.ReLU(),
             nn.Flatten(),
-            nn.Linear(800, 64),
+            nn.Linear(800 * w, 64 * w),
             nn.ReLU(),
-            nn.Linear(64, 64),
+            nn.Linear(64 * w, 64 * w),
             nn.ReLU(),
         )
-        self.pos_x = nn.Sequential(nn.Linear(k_p, 16), nn.ReLU())
-        self.pos_y = nn.Sequential(nn.Linear(k_p, 8), nn.ReLU())
-        self.pos_z = nn.Sequential(nn.Linear(k_p, 8), nn.ReLU())
-        self.pos_merge = nn.Sequential(nn.Linear(32, 16), nn.ReLU())
-        self.trunk = nn.Sequential(nn.Linear(80, 64), nn.ReLU(), nn.Linear(64, 32), nn.ReLU())
+        self.pos_x = nn.Sequential(nn.Linear(k_p, 16 * w), nn.ReLU())
+        self.pos_y = nn.Sequential(nn.Linear(k_p, 8 * w), nn.ReLU())
+        self.pos_z = nn.Sequential(nn.Linear(k_p, 8 * w), nn.ReLU())
+        self.pos_merge = nn.Sequential(nn.Linear(32 * w, 16 * w), nn.ReLU())
+        self.trunk = nn.Sequential(nn.Linear(80 * w, 64 * w), nn.ReLU(), nn.Linear(64 * w, 32 * w), nn.ReLU())
         if config.dueling:
-            self.value = nn.Linear(32, 1)
-            self.advantage = nn.Linear(32, config.n_actions)
+            self.value = nn.Linear(32 * w, 1)
+            self.advantage = nn.Linear(32 * w, config.n_actions)
         else:
-            self.out = nn.Linear(32, config.n_actions)
+            self.out = nn.Linear(32 * w, config.n_actions)
 
     def forward(self, depth: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
         return self.q_from_features(self.depth_features(depth), rel_pos)
 
     def depth_features(self, depth: torch.Tensor) -> torch.Tensor:
-        """The depth lane alone: depth (B, depth_history, 32, 32) -> features (B, 64).
+        """The depth lane alone: depth (B, depth_history, 32, 32) -> features (B, 64 * width).
 
         With :meth:`q_from_features` this splits :meth:`forward` in two, so the flight daemon can
         run the depth lane when a frame arrives and only the rest at the step boundary.
@@ -93,7 +110,7 @@ class DQN(nn.Module):
         return self.depth_lane(depth)
 
     def q_from_features(self, features: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
-        """The position lane, trunk and head: features (B, 64), rel_pos (B, position_history, 3)
+        """The position lane, trunk and head: features (B, 64 * width), rel_pos (B, position_history, 3)
         -> Q-values (B, n_actions)."""
         p = torch.cat(
             [self.pos_x(rel_pos[..., 0]), self.pos_y(rel_pos[..., 1]), self.pos_z(rel_pos[..., 2])],

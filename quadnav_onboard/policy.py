@@ -89,7 +89,7 @@ class Policy:
         return self.act_from_features(self.depth_features(depth), rel, allowed)
 
     def depth_features(self, depth: ArrayLike) -> NDArray[np.float32]:
-        """The network's depth lane for one depth stack (k_d, 32, 32): features float32 (64,)."""
+        """The network's depth lane for one depth stack (k_d, 32, 32): features float32 (64 * width,)."""
         d = np.ascontiguousarray(depth, dtype=np.float32)
         if d.shape != (self.depth_history, 32, 32):
             raise ValueError(f"depth must have shape ({self.depth_history}, 32, 32), got {d.shape}")
@@ -99,7 +99,7 @@ class Policy:
     def act_from_features(
         self, features: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None
     ) -> tuple[int, NDArray[np.float32]]:
-        """The rest of the network and the arg-max: features (64,) from :meth:`depth_features`,
+        """The rest of the network and the arg-max: features (64 * width,) from :meth:`depth_features`,
         rel (k_p, 3); returns (action index, Q-values (n_actions,)).
 
         ``allowed``: bool (n_actions,); the arg-max is over the allowed actions only, or over all

@@ -61,7 +61,7 @@ class PreparedFrame:
     depth_input: NDArray[np.float32]
     """The network's depth input for this frame, float32 (32, 32) in [0, 1]."""
     features: NDArray[np.float32]
-    """Depth-lane features of the history's last k_d - 1 inputs and this one, float32 (64,)."""
+    """Depth-lane features of the history's last k_d - 1 inputs and this one, float32 (64 * width,)."""
     history_version: int
     """``ObservationHistory.version`` they were computed against."""
     allowed: NDArray[np.bool_] | None = None

@@ -120,6 +120,10 @@ class TrainConfig:
     """Depth frames stacked as input (1 = the paper). Range: [1, 32]."""
     position_history: Annotated[int, pydantic.Field(ge=1, le=32)] = 1
     """Relative positions stacked as input (1 = the paper). Range: [1, 32]."""
+    network_width: Annotated[int, pydantic.Field(ge=1, le=4)] = 1
+    """Every hidden layer of the network this many times as wide (1 = the paper's layer sizes; 2
+    has about four times the parameters). An ``init_model`` of the paper's width is widened to
+    it, computing what it did. Range: [1, 4]."""
     prioritized_replay: bool = False
     """Prioritised replay (beyond the paper): transitions sampled in proportion to |TD error|^α,
     the loss weighted by importance sampling (sim_harness.rl.replay.PrioritizedReplayBuffer)."""

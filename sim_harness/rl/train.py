@@ -56,7 +56,7 @@ from sim_harness.rl.runlog import (
 from sim_harness.rl.schedules import LinearSchedule, linear_tail
 from sim_harness.rl.tblog import TensorBoardLog, open_tensorboard
 from sim_harness.rl.teacher import Teacher, teacher_config
-from sim_harness.rl.widen import can_widen, widen_history
+from sim_harness.rl.widen import can_widen, widen
 from sim_harness.world import World, load_world, paper_world_path
 
 __all__ = [
@@ -144,6 +144,7 @@ def network_config_for(cfg: TrainConfig) -> NetworkConfig:
         depth_history=cfg.depth_history,
         position_history=cfg.position_history,
         dueling=cfg.dueling,
+        width=cfg.network_width,
     )
 
 
@@ -179,19 +180,22 @@ def _init_checkpoint(cfg: TrainConfig) -> Checkpoint | None:
     if not can_widen(init.network, network_config_for(cfg)):
         raise ConfigError(
             f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
-            f"this config's {network_config_for(cfg)} (only the histories may be longer here)"
+            f"this config's {network_config_for(cfg)} (only the histories may be longer "
+            "here, and the hidden layers wider)"
         )
     return init
 
 
 def _init_weights(init: Checkpoint, cfg: TrainConfig) -> dict[str, torch.Tensor]:
     """``init``'s weights for this config's network: as they are, or with the longer histories'
-    older inputs at zero weight (:func:`~sim_harness.rl.widen.widen_history`)."""
+    older inputs at zero weight and the wider layers' new units unread
+    (:func:`~sim_harness.rl.widen.widen`, seeded by the config's seed)."""
     target = network_config_for(cfg)
     if init.network != target:
         log.info("init_model widened", depth_history=[init.network.depth_history, target.depth_history],
-                 position_history=[init.network.position_history, target.position_history])
-    return widen_history(init.model, target)
+                 position_history=[init.network.position_history, target.position_history],
+                 width=[init.network.width, target.width])
+    return widen(init.model, target, seed=cfg.seed)
 
 
 def _rng_states(**rngs: np.random.Generator) -> dict[str, Any]:

@@ -1,10 +1,15 @@
-"""A trained network's weights for a network with a longer input history.
+"""A trained network's weights for a network with a longer input history, or wider layers.
 
 A network of ``depth_history`` k (``position_history`` p) reads its last k depth frames (p
 relative positions), oldest first. :func:`widen_history` gives the same network with a longer
 history the extra, older inputs with zero weights: it computes exactly what the trained one
 does, and training (e.g. DAgger from the trained network behind its filter) can then teach it to
 use the older frames, the views of obstacles that have left the camera's field of view.
+
+:func:`widen` also widens every hidden layer (``NetworkConfig.width``): each layer keeps its
+trained units, and its new units get a fresh random initialisation of their inputs while every
+trained unit reads them at zero weight, so the wider network too computes exactly what the
+trained one does, and the new units start to learn from the first gradient.
 """
 
 from __future__ import annotations
@@ -15,20 +20,23 @@ import torch
 
 from quadnav_onboard.network import DQN, NetworkConfig
 
-__all__ = ["can_widen", "widen_history"]
+__all__ = ["can_widen", "widen", "widen_history"]
 
 _POSITION_LANES = ("pos_x", "pos_y", "pos_z")
 
 
 def can_widen(source: NetworkConfig, target: NetworkConfig) -> bool:
-    """Whether ``target`` is ``source`` with a depth and position history at least as long."""
+    """Whether ``target`` is ``source`` with a depth and position history at least as long and
+    hidden layers at least as wide."""
     same_otherwise = dataclasses.replace(
-        source, depth_history=target.depth_history, position_history=target.position_history
+        source, depth_history=target.depth_history, position_history=target.position_history,
+        width=target.width,
     ) == target
     return (
         same_otherwise
         and target.depth_history >= source.depth_history
         and target.position_history >= source.position_history
+        and target.width >= source.width
     )
 
 
@@ -38,7 +46,7 @@ def widen_history(model: DQN, target: NetworkConfig) -> dict[str, torch.Tensor]:
     (histories are oldest first), every other tensor is copied. Raises ValueError when
     ``target`` differs from the model's config by more than longer histories."""
     source = model.config
-    if not can_widen(source, target):
+    if not can_widen(source, target) or target.width != source.width:
         raise ValueError(
             f"cannot widen a network of {source} to {target}: only longer depth and position "
             "histories can be added"
@@ -53,4 +61,62 @@ def widen_history(model: DQN, target: NetworkConfig) -> dict[str, torch.Tensor]:
     prepend_zeros("depth_lane.0.weight", target.depth_history - source.depth_history)
     for lane in _POSITION_LANES:
         prepend_zeros(f"{lane}.0.weight", target.position_history - source.position_history)
+    return state
+
+
+def _hidden_layout(cfg: NetworkConfig) -> dict[str, tuple[list[range] | None, list[range] | None]]:
+    """For each weight layer of a :class:`DQN` of ``cfg``, where its units sit among its inputs
+    and outputs when ``cfg.width`` is 1, as index ranges of a network of ``cfg``'s width (None:
+    the layer's inputs, or outputs, are the network's own and never widen)."""
+    w = cfg.width
+    head = {"value": (None, None), "advantage": (None, None)} if cfg.dueling else {"out": (None, None)}
+    layout = {
+        "depth_lane.0": (None, [range(8)]),
+        "depth_lane.2": ([range(8)], [range(16)]),
+        "depth_lane.4": ([range(16)], [range(32)]),
+        "depth_lane.7": ([range(800)], [range(64)]),  # flattened channel by channel: the first 32 channels
+        "depth_lane.9": ([range(64)], [range(64)]),
+        "pos_x.0": (None, [range(16)]),
+        "pos_y.0": (None, [range(8)]),
+        "pos_z.0": (None, [range(8)]),
+        "pos_merge.0": ([range(16), range(16 * w, 16 * w + 8), range(24 * w, 24 * w + 8)], [range(16)]),
+        "trunk.0": ([range(64), range(64 * w, 64 * w + 16)], [range(64)]),
+        "trunk.2": ([range(64)], [range(32)]),
+    }
+    return {**layout, **{k: ([range(32)], None) for k in head}}
+
+
+def widen(model: DQN, target: NetworkConfig, seed: int = 0) -> dict[str, torch.Tensor]:
+    """``model``'s state dict for a :class:`DQN` of config ``target``, whose histories may be
+    longer (:func:`widen_history`) and whose hidden layers may be wider (``width``; from the
+    paper's width only). The new units' input weights and biases are those of a fresh
+    :class:`DQN` of ``target`` initialised under ``torch.manual_seed(seed)`` (the global
+    generator is left as it was); the trained units read the new ones at zero weight. Raises
+    ValueError when ``target`` is not such a widening of the model's config."""
+    source = model.config
+    if not can_widen(source, target):
+        raise ValueError(
+            f"cannot widen a network of {source} to {target}: only longer depth and position "
+            "histories and wider hidden layers can be added"
+        )
+    if target.width == source.width:
+        return widen_history(model, target)
+    if source.width != 1:
+        raise ValueError(f"cannot widen a network of width {source.width}: only the paper's width 1 widens")
+    narrow = widen_history(model, dataclasses.replace(target, width=1))
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        fresh = DQN(target).state_dict()
+    state: dict[str, torch.Tensor] = {}
+    for layer, (ins, outs) in _hidden_layout(target).items():
+        w_old, b_old = narrow[f"{layer}.weight"], narrow[f"{layer}.bias"]
+        w_new, b_new = fresh[f"{layer}.weight"].clone(), fresh[f"{layer}.bias"].clone()
+        rows = torch.arange(w_new.shape[0]) if outs is None else torch.cat([torch.tensor(r) for r in outs])
+        cols = torch.arange(w_new.shape[1]) if ins is None else torch.cat([torch.tensor(r) for r in ins])
+        w_new[rows] = 0.0  # a trained unit reads every new unit at zero weight ...
+        w_new[rows[:, None], cols] = w_old  # ... and its trained inputs as it did
+        b_new[rows] = b_old
+        state[f"{layer}.weight"], state[f"{layer}.bias"] = w_new, b_new
+    if set(state) != set(fresh):
+        raise AssertionError(f"widen: layers not covered: {sorted(set(fresh) - set(state))}")
     return state
