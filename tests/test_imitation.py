@@ -14,7 +14,15 @@ from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
 from sim_harness.rl.config import TrainConfig
-from sim_harness.rl.imitation import Aggregate, DaggerSettings, collect, fit, lr_at, margin_loss
+from sim_harness.rl.imitation import (
+    Aggregate,
+    DaggerSettings,
+    collect,
+    first_choice_agreement,
+    fit,
+    lr_at,
+    margin_loss,
+)
 from sim_harness.rl.teacher import Teacher
 from sim_harness.rl.train import train
 from sim_harness.world import parse_world
@@ -99,6 +107,27 @@ def test_fit_learns_the_labels(side_rule) -> None:
         assert torch.equal(p, q)
 
 
+def test_first_choice_agreement_counts_the_rows_whose_arg_max_is_the_teacher_s_and_changes_nothing(
+        side_rule) -> None:
+    torch.manual_seed(1)
+    rng = np.random.default_rng(1)
+    agent = DQNAgent(NetworkConfig())
+    data = Aggregate(64, (1, 32, 32), (1, 3), 18)
+    depth, rel, _ = side_rule(rng, 64)
+    data.add(depth, rel, np.zeros((64, 18), np.float32), 0)
+    greedy = agent.greedy(depth, rel)
+    # the teacher's first choice is the network's own in the even rows and another in the odd
+    data.target[np.arange(64), np.where(np.arange(64) % 2 == 0, greedy, (greedy + 1) % 18)] = 1.0
+    before = [p.detach().clone() for p in agent.q.parameters()]
+    state = rng.bit_generator.state
+    assert first_choice_agreement(agent, data, np.arange(64), batch=5) == pytest.approx(0.5)
+    assert first_choice_agreement(agent, data, np.arange(0, 64, 2)) == 1.0
+    assert first_choice_agreement(agent, data, np.arange(1, 64, 2)) == 0.0
+    assert first_choice_agreement(agent, data, np.arange(0)) is None
+    assert all(torch.equal(p, q) for p, q in zip(before, agent.q.parameters(), strict=True))
+    assert rng.bit_generator.state == state
+
+
 def test_train_with_imitation_only_writes_the_records_and_a_flyable_model(tmp_path) -> None:
     cfg = TrainConfig(
         name="dg", seed=1, train_worlds=(1,), n_envs=4, max_steps=10, batch_size=16,
@@ -110,6 +139,10 @@ def test_train_with_imitation_only_writes_the_records_and_a_flyable_model(tmp_pa
     assert [(r["iteration"], r["scale_m"]) for r in records] == [(0, 1.0), (0, 0.5), (1, 1.0), (1, 0.5)]
     assert [r["beta"] for r in records] == [1.0, 1.0, 0.5, 0.5]
     assert records[1]["dataset"] < records[3]["dataset"]
+    for last in (records[1], records[3]):  # each iteration's last record: the fit and the new states
+        assert 0.0 <= last["agreement"] <= 1.0
+        assert 0.0 <= last["agreement_new"] <= 1.0
+    assert "agreement_new" not in records[0] and "agreement_new" not in records[2]
     ck = load_checkpoint(result.model_path)
     assert ck.meta["train_config"]["dagger_iterations"] == 2
     assert (result.run_dir / "checkpoints" / "imitation.pt").is_file()

@@ -43,7 +43,7 @@ from sim_harness.world import World
 
 __all__ = [
     "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "Labels", "WorldCurriculum", "collect", "dagger",
-    "fit", "lr_at", "margin_loss", "veto_loss",
+    "first_choice_agreement", "fit", "lr_at", "margin_loss", "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -285,6 +285,23 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
     return float(np.mean(losses)), float(np.mean(agree[-last:]))
 
 
+def first_choice_agreement(agent: DQNAgent, data: Aggregate, rows: NDArray[np.int64], batch: int = 4096
+                           ) -> float | None:
+    """The share of the aggregate's ``rows`` whose arg-max Q is the teacher's first choice (the
+    arg-max of its target), the network in eval mode and no gradient: a pure measurement, which
+    changes no weight and draws no random number. None for no rows."""
+    if rows.size == 0:
+        return None
+    agent.q.eval()
+    hits = 0
+    with torch.no_grad():
+        for start in range(0, rows.size, batch):
+            idx = rows[start:start + batch]
+            q = agent.q(agent._t(data.depth[idx].astype(np.float32)), agent._t(data.rel[idx]))
+            hits += int((q.argmax(dim=1).cpu().numpy() == data.target[idx].argmax(axis=1)).sum())
+    return hits / rows.size
+
+
 def lr_at(settings: DaggerSettings, iteration: int) -> float:
     """The fit's step size in ``iteration``: ``lr`` throughout, or with ``lr_end`` set, from
     ``lr`` in the first iteration to ``lr_end`` in the last, geometrically."""
@@ -311,8 +328,10 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
     """Run DAgger on ``agent.q`` over ``tasks`` (e.g. one per primitive scale, and a lab's
     layouts under its flight config); returns one record per iteration and task (outcomes,
     dataset size, the released states in the aggregate, the states this task labelled in this
-    iteration and how many of them its teacher released, loss, wall time). Every task's teacher
-    must fit by the same loss."""
+    iteration and how many of them its teacher released, loss, wall time; on each iteration's
+    last record the fit's ``agreement`` with the teacher's first choice on the states it fitted,
+    and ``agreement_new`` on the states this iteration added, by the network before it fitted
+    them: states it has not learned from). Every task's teacher must fit by the same loss."""
     s = settings
     if not tasks:
         raise ValueError("dagger needs at least one task")
@@ -357,12 +376,16 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
                 weights = curriculum.next_weights()
                 env.set_world_weights(weights)
                 records[-1]["world_weights"] = [round(float(w), 4) for w in weights]
+        new_rows = np.flatnonzero(data.iteration[:len(data)] == it)
+        agreement_new = first_choice_agreement(agent, data, new_rows)
         loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, loss_kind, s.updates,
                               s.margin_weight, s.margin, s.veto_weight)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
+        records[-1]["agreement_new"] = None if agreement_new is None else round(agreement_new, 4)
         records[-1]["wall_s"] = round(time.monotonic() - t0, 2)
         log.info("dagger iteration", iteration=it, beta=round(beta, 4), dataset=len(data),
-                 loss=round(loss, 4), agreement=round(agreement, 3), released=records[-1]["released"],
+                 loss=round(loss, 4), agreement=round(agreement, 3),
+                 agreement_new=records[-1]["agreement_new"], released=records[-1]["released"],
                  outcomes=[r["outcomes"] for r in records[-len(envs):]], wall_s=records[-1]["wall_s"])
     return records
