@@ -40,6 +40,7 @@ SOFT = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft.yaml"
 FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-free1m.yaml"
 SOFT_FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-free1m.yaml"
 SOFT_RELEASE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release.yaml"
+SOFT_RELEASE_E2 = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release-e2.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -251,6 +252,16 @@ def test_release_recipe_is_the_soft_recipe_with_the_teacher_released_at_0_75_m()
     assert dataclasses.replace(got, name=flags.name) == flags
     assert got.teacher_release_m == 0.75 and got.teacher_respect_filter
     assert got.imitation_temperature_m == 0.3
+
+
+def test_two_pass_release_recipe_is_the_release_recipe_with_two_passes_of_the_fit() -> None:
+    """recipes/privileged-lab-hinge3-round2-f25-failures-soft-release-e2.yaml is the release recipe
+    with ``--imitation-epochs 2`` (the command its seeds were trained with), its own name."""
+    got = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE_E2)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE), "--imitation-epochs", "2"]))
+    assert got.name == SOFT_RELEASE_E2.stem
+    assert dataclasses.replace(got, name=flags.name) == flags
+    assert got.imitation_epochs == 2.0 and got.teacher_release_m == 0.75
 
 
 def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:
