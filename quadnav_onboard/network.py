@@ -55,11 +55,6 @@ class NetworkConfig:
             del d["width"]
         return d
 
-    @property
-    def n_features(self) -> int:
-        """Size of the depth lane's output (:meth:`DQN.depth_features`)."""
-        return 64 * self.width
-
 
 class DQN(nn.Module):
     """Q(s, ·) for s = (depth, relative position).
