@@ -64,26 +64,23 @@ def widen_history(model: DQN, target: NetworkConfig) -> dict[str, torch.Tensor]:
     return state
 
 
-def _hidden_layout(cfg: NetworkConfig) -> dict[str, tuple[list[range] | None, list[range] | None]]:
-    """For each weight layer of a :class:`DQN` of ``cfg``, where its units sit among its inputs
-    and outputs when ``cfg.width`` is 1, as index ranges of a network of ``cfg``'s width (None:
-    the layer's inputs, or outputs, are the network's own and never widen)."""
-    w = cfg.width
-    head = {"value": (None, None), "advantage": (None, None)} if cfg.dueling else {"out": (None, None)}
-    layout = {
-        "depth_lane.0": (None, [range(8)]),
-        "depth_lane.2": ([range(8)], [range(16)]),
-        "depth_lane.4": ([range(16)], [range(32)]),
-        "depth_lane.7": ([range(800)], [range(64)]),  # flattened channel by channel: the first 32 channels
-        "depth_lane.9": ([range(64)], [range(64)]),
-        "pos_x.0": (None, [range(16)]),
-        "pos_y.0": (None, [range(8)]),
-        "pos_z.0": (None, [range(8)]),
-        "pos_merge.0": ([range(16), range(16 * w, 16 * w + 8), range(24 * w, 24 * w + 8)], [range(16)]),
-        "trunk.0": ([range(64), range(64 * w, 64 * w + 16)], [range(64)]),
-        "trunk.2": ([range(64)], [range(32)]),
-    }
-    return {**layout, **{k: ([range(32)], None) for k in head}}
+_CONCATENATED = {"pos_merge.0": ("pos_x.0", "pos_y.0", "pos_z.0"), "trunk.0": ("depth_lane.9", "pos_merge.0")}
+"""The layers whose input joins other layers' outputs, in :meth:`DQN.q_from_features`'s order."""
+
+
+def _trained_inputs(layer: str, narrow: dict[str, torch.Tensor],
+                    wide: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Where a layer's trained inputs sit among its wide inputs. Each layer's trained units come
+    first among its units (a flattened convolution's too: channel by channel), so an input that
+    is one layer's output keeps its first positions, and a joined input keeps the first
+    positions of each part, at the part's wide offset."""
+    if layer not in _CONCATENATED:
+        return torch.arange(narrow[f"{layer}.weight"].shape[1])
+    parts, offset = [], 0
+    for part in _CONCATENATED[layer]:
+        parts.append(torch.arange(narrow[f"{part}.weight"].shape[0]) + offset)
+        offset += wide[f"{part}.weight"].shape[0]
+    return torch.cat(parts)
 
 
 def widen(model: DQN, target: NetworkConfig, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -108,15 +105,15 @@ def widen(model: DQN, target: NetworkConfig, seed: int = 0) -> dict[str, torch.T
         torch.manual_seed(seed)
         fresh = DQN(target).state_dict()
     state: dict[str, torch.Tensor] = {}
-    for layer, (ins, outs) in _hidden_layout(target).items():
+    for layer in (key.removesuffix(".weight") for key in fresh if key.endswith(".weight")):
         w_old, b_old = narrow[f"{layer}.weight"], narrow[f"{layer}.bias"]
         w_new, b_new = fresh[f"{layer}.weight"].clone(), fresh[f"{layer}.bias"].clone()
-        rows = torch.arange(w_new.shape[0]) if outs is None else torch.cat([torch.tensor(r) for r in outs])
-        cols = torch.arange(w_new.shape[1]) if ins is None else torch.cat([torch.tensor(r) for r in ins])
+        rows = torch.arange(w_old.shape[0])  # the trained units come first (the outputs: all)
         w_new[rows] = 0.0  # a trained unit reads every new unit at zero weight ...
+        cols = _trained_inputs(layer, narrow, fresh)
         w_new[rows[:, None], cols] = w_old  # ... and its trained inputs as it did
         b_new[rows] = b_old
         state[f"{layer}.weight"], state[f"{layer}.bias"] = w_new, b_new
     if set(state) != set(fresh):
-        raise AssertionError(f"widen: layers not covered: {sorted(set(fresh) - set(state))}")
+        raise AssertionError(f"widen: tensors not covered: {sorted(set(fresh) - set(state))}")
     return state
