@@ -9,11 +9,12 @@ import pytest
 import torch
 
 from quadnav_onboard.checkpoint import load_checkpoint
+from quadnav_onboard.config import ConfigError
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent
-from sim_harness.rl.config import TrainConfig
+from sim_harness.rl.config import TrainConfig, load_train_config
 from sim_harness.rl.imitation import (
     Aggregate,
     DaggerSettings,
@@ -22,6 +23,7 @@ from sim_harness.rl.imitation import (
     fit,
     lr_at,
     margin_loss,
+    random_allowed,
 )
 from sim_harness.rl.teacher import Teacher
 from sim_harness.rl.train import train
@@ -215,3 +217,57 @@ def test_the_fits_step_size_falls_geometrically_to_its_end_value() -> None:
     falling = DaggerSettings(**base, lr_end=1e-5)
     assert [lr_at(flat, i) for i in range(5)] == [1e-3] * 5
     assert [lr_at(falling, i) for i in range(5)] == pytest.approx([1e-3, 10**-3.5, 1e-4, 10**-4.5, 1e-5])
+
+
+def test_random_allowed_draws_only_allowed_primitives_and_keeps_the_fallback_where_none_is() -> None:
+    allowed = np.zeros((3, 18), dtype=bool)
+    allowed[0, [2, 5]] = True
+    allowed[1] = True
+    fallback = np.array([7, 7, 7], dtype=np.int64)
+    rng = np.random.default_rng(0)
+    picks = np.stack([random_allowed(allowed, fallback, rng) for _ in range(400)])
+    assert set(picks[:, 0]) == {2, 5}  # both allowed ones, nothing else
+    assert len(set(picks[:, 1])) == 18  # every primitive where all are allowed
+    assert np.all(picks[:, 2] == 7)  # none allowed: the fallback
+
+
+def test_noise_off_draws_no_random_number() -> None:
+    env, teacher = _env(max_steps=4), Teacher()
+    data = Aggregate(1000, (1, 32, 32), (1, 3), 18)
+    rng = np.random.default_rng(0)
+    before = rng.bit_generator.state
+    collect(env, teacher, _Hoverer(NetworkConfig()), 2, 1.0, rng, 0.25, data, 0, noise=0.0)
+    assert rng.bit_generator.state == before  # the teacher flew, nothing drawn
+    collect(env, teacher, _Hoverer(NetworkConfig()), 2, 1.0, rng, 0.25, data, 0, noise=0.5)
+    assert rng.bit_generator.state != before
+
+
+def test_noise_flies_random_primitives_and_keeps_the_teachers_labels() -> None:
+    env, teacher = _env(n=4, max_steps=6), Teacher()
+    flown: list[np.ndarray] = []
+    step = env.step
+    env.step = lambda actions: (flown.append(np.array(actions)), step(actions))[1]  # type: ignore[method-assign]
+    data = Aggregate(1000, (1, 32, 32), (1, 3), 18)
+    counts = collect(env, teacher, _Hoverer(NetworkConfig()), 4, 0.0, np.random.default_rng(0), 0.25, data, 1,
+                     noise=1.0)
+    assert sum(counts.values()) == 4
+    actions = np.concatenate(flown)
+    # the hovering student chose every step, and every step flew a random primitive instead
+    assert np.mean(actions == HOVER) < 0.2 and len(set(actions.tolist())) > 9
+    # the states are labelled with the teacher's move
+    assert np.all(np.argmax(data.target[: len(data)], axis=1) != HOVER)
+
+
+@pytest.mark.parametrize("noise", [-0.1, 1.5, float("nan")])
+def test_noise_outside_a_probability_is_refused(noise: float) -> None:
+    env, teacher = _env(), Teacher()
+    data = Aggregate(100, (1, 32, 32), (1, 3), 18)
+    with pytest.raises(ValueError, match="noise"):
+        collect(env, teacher, _Hoverer(NetworkConfig()), 1, 1.0, np.random.default_rng(0), 0.25, data, 0,
+                noise=noise)
+
+
+def test_dagger_noise_is_range_checked_in_the_config() -> None:
+    with pytest.raises(ConfigError, match=r"recipe\.yaml.*dagger_noise.*1\.5"):
+        load_train_config({"dagger_noise": 1.5}, "recipe.yaml")
+    assert load_train_config({"dagger_noise": 0.1}, "recipe.yaml").dagger_noise == 0.1

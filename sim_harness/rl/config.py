@@ -225,6 +225,12 @@ class TrainConfig:
     """With ``dagger_world_sampling`` "failures": the weight every world keeps whatever its
     failure rate (a world the student always flies well is still picked, less often).
     Range: (0, 10]."""
+    dagger_noise: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
+    """Probability that a step of DAgger's flights is a random primitive instead of the one the
+    teacher or the network chose (uniform among those the flight allows: behind the filter, what
+    it allows), so the teacher labels states off the paths both keep to (DART, Laskey et al.
+    2017). The episodes' outcomes, and the failure curriculum's rates, include these steps.
+    0 = none. Range: [0, 1]."""
     dagger_filtered_share: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
     """Share of DAgger's envs in which the network flies behind the depth safety filter (as the
     product does) when it is the one flying; the rest fly it alone. Needs ``shield`` when > 0.

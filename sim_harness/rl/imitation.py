@@ -4,7 +4,11 @@ Iteration ``i`` (0, 1, ...) of :func:`dagger`:
 
 1. **Roll out** ``dagger_episodes`` episodes per primitive scale in ``imitation_scales``; at each
    step every running env takes the teacher's primitive with probability ``dagger_beta ** i``
-   (iteration 0: the teacher alone), else the network's greedy one (Ross et al. 2011).
+   (iteration 0: the teacher alone), else the network's greedy one (Ross et al. 2011). With
+   ``dagger_noise`` > 0 each env's step is, with that probability, a random primitive instead
+   (uniform among those its flight allows), whoever would have flown it: the flights leave the
+   paths the teacher and the network keep to, and the teacher labels the states they find there
+   (DART; Laskey et al. 2017).
 2. **Label** every visited state, whoever flew it, and **aggregate** it into one dataset
    (:class:`Aggregate`: every iteration's states are kept, up to ``imitation_buffer``). The
    teacher (a :class:`Labeller`) is either the privileged one
@@ -43,7 +47,7 @@ from sim_harness.world import World
 
 __all__ = [
     "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "Labels", "WorldCurriculum", "collect", "dagger",
-    "first_choice_agreement", "fit", "lr_at", "margin_loss", "veto_loss",
+    "first_choice_agreement", "fit", "lr_at", "margin_loss", "random_allowed", "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -68,6 +72,8 @@ class DaggerSettings:
     margin: float = 1.0
     lr_end: float | None = None
     veto_weight: float = 0.0
+    noise: float = 0.0
+    """Probability that an env's step is a random primitive (``dagger_noise``)."""
     curriculum_floor: float | None = None
     """:class:`WorldCurriculum`'s floor (``dagger_world_sampling`` "failures"); None: every world alike."""
 
@@ -184,6 +190,7 @@ def collect(
     filtered_share: float = 0.0,
     curriculum: WorldCurriculum | None = None,
     keep_verdicts: bool = True,
+    noise: float = 0.0,
 ) -> dict[str, int]:
     """Fly ``episodes`` episodes in ``env`` (auto-reset) with the β-mixture of teacher and network,
     adding every visited state with the teacher's label to ``data``; returns the outcome counts of
@@ -191,7 +198,11 @@ def collect(
     the network behind the env's filter (its ``allowed``), as the product does; the rest alone.
     ``curriculum`` records each counted episode's world and outcome. ``keep_verdicts``: the
     filter's verdicts are kept with the labels (for the hinge); without, every primitive counts
-    as allowed there."""
+    as allowed there. ``noise``: the probability that an env's step is a random primitive instead,
+    uniform among the filter's allowed ones in the envs that fly behind it and among all in the
+    others; 0 draws no random number for it, so the flights are those without the key."""
+    if not 0.0 <= noise <= 1.0:
+        raise ValueError(f"noise must be a probability in [0, 1], got {noise!r}")
     filtered = np.arange(env.n_envs) < round(filtered_share * env.n_envs)
     counts: dict[str, int] = {}
     finished = 0
@@ -206,6 +217,11 @@ def collect(
             if own.any():
                 alone = np.where(filtered[:, None], env.allowed, True)
                 actions[own] = agent.greedy(depth[own], rel[own], alone[own])
+        if noise > 0.0:
+            jolt = np.flatnonzero(rng.random(env.n_envs) < noise)
+            if jolt.size:
+                actions[jolt] = random_allowed(np.where(filtered[:, None], env.allowed, True)[jolt],
+                                               actions[jolt], rng)
         depth, rel, _, term, trunc, info = env.step(actions)
         for i in np.flatnonzero(term | trunc):
             if finished < episodes:
@@ -215,6 +231,14 @@ def collect(
                 if curriculum is not None:
                     curriculum.record(int(info["world_index"][i]), key)
     return counts
+
+
+def random_allowed(allowed: NDArray[np.bool_], fallback: NDArray[np.int64], rng: np.random.Generator
+                   ) -> NDArray[np.int64]:
+    """One primitive per row of ``allowed`` (N, n_actions), uniform among the row's allowed ones;
+    ``fallback``'s where a row allows none."""
+    scores = np.where(allowed, rng.random(allowed.shape), -1.0)
+    return np.where(allowed.any(axis=1), scores.argmax(axis=1), fallback).astype(np.int64)
 
 
 def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float) -> torch.Tensor:
@@ -364,7 +388,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         for env, task, curriculum in zip(envs, tasks, curricula, strict=True):
             added, added_released = data.added, data.added_released
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
-                             s.filtered_share, curriculum, task.filter_verdicts)
+                             s.filtered_share, curriculum, task.filter_verdicts, s.noise)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
                 "worlds": len(task.worlds),
