@@ -41,6 +41,7 @@ FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-free1m.y
 SOFT_FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-free1m.yaml"
 SOFT_RELEASE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release.yaml"
 SOFT_RELEASE_E2 = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release-e2.yaml"
+SOFT_RELEASE_E2_NOISE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release-e2-noise.yaml"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -262,6 +263,15 @@ def test_two_pass_release_recipe_is_the_release_recipe_with_two_passes_of_the_fi
     assert got.name == SOFT_RELEASE_E2.stem
     assert dataclasses.replace(got, name=flags.name) == flags
     assert got.imitation_epochs == 2.0 and got.teacher_release_m == 0.75
+
+
+def test_noise_recipe_is_the_two_pass_recipe_with_the_flag_its_first_seeds_were_trained_with() -> None:
+    """recipes/...-e2-noise.yaml equals the two-pass recipe with --dagger-noise 0.1 (run e2-n01)."""
+    got = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE_E2_NOISE)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE_E2), "--dagger-noise", "0.1"]))
+    assert got.name == SOFT_RELEASE_E2_NOISE.stem
+    assert dataclasses.replace(got, name=flags.name) == flags
+    assert got.dagger_noise == 0.1 and got.imitation_epochs == 2.0
 
 
 def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:
