@@ -41,7 +41,7 @@ FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-free1m.y
 SOFT_FREE_1M = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-free1m.yaml"
 SOFT_RELEASE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release.yaml"
 SOFT_RELEASE_E2 = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release-e2.yaml"
-SOFT_RELEASE_E2_NOISE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release-e2-noise.yaml"
+SOFT_RELEASE_E2_NOISE = SOFT_RELEASE_E2.with_name(SOFT_RELEASE_E2.stem + "-noise.yaml")
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
