@@ -117,6 +117,7 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.dagger_iterations", "zero"): "no imitation (the paper)",
     ("train.dagger_beta", "zero"): "the network flies every step after iteration 0",
     ("train.dagger_filtered_share", "zero"): "the network flies alone in every DAgger env",
+    ("train.dagger_noise", "zero"): "no random steps in DAgger's flights",
     ("train.imitation_updates", "zero"): "the fit runs imitation_epochs passes instead",
     ("train.imitation_margin_weight", "zero"): "the fit has no large-margin term",
     ("train.imitation_veto_weight", "zero"): "the fit has no hinge on the filter's verdicts",
