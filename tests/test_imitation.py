@@ -13,7 +13,7 @@ from quadnav_onboard.config import ConfigError
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from sim_harness.env import EnvConfig, VecQuadNavEnv
-from sim_harness.rl.agent import DQNAgent
+from sim_harness.rl.agent import DQNAgent, random_allowed
 from sim_harness.rl.config import TrainConfig, load_train_config
 from sim_harness.rl.imitation import (
     Aggregate,
@@ -23,7 +23,6 @@ from sim_harness.rl.imitation import (
     fit,
     lr_at,
     margin_loss,
-    random_allowed,
 )
 from sim_harness.rl.teacher import Teacher
 from sim_harness.rl.train import train
@@ -219,16 +218,15 @@ def test_the_fits_step_size_falls_geometrically_to_its_end_value() -> None:
     assert [lr_at(falling, i) for i in range(5)] == pytest.approx([1e-3, 10**-3.5, 1e-4, 10**-4.5, 1e-5])
 
 
-def test_random_allowed_draws_only_allowed_primitives_and_keeps_the_fallback_where_none_is() -> None:
-    allowed = np.zeros((3, 18), dtype=bool)
+def test_random_allowed_draws_every_allowed_primitive_and_nothing_else() -> None:
+    allowed = np.zeros((2, 18), dtype=bool)
     allowed[0, [2, 5]] = True
     allowed[1] = True
-    fallback = np.array([7, 7, 7], dtype=np.int64)
     rng = np.random.default_rng(0)
-    picks = np.stack([random_allowed(allowed, fallback, rng) for _ in range(400)])
+    picks = np.stack([random_allowed(allowed, rng) for _ in range(400)])
+    assert picks.dtype == np.int64
     assert set(picks[:, 0]) == {2, 5}  # both allowed ones, nothing else
     assert len(set(picks[:, 1])) == 18  # every primitive where all are allowed
-    assert np.all(picks[:, 2] == 7)  # none allowed: the fallback
 
 
 def test_noise_off_draws_no_random_number() -> None:

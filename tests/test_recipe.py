@@ -255,23 +255,22 @@ def test_release_recipe_is_the_soft_recipe_with_the_teacher_released_at_0_75_m()
     assert got.imitation_temperature_m == 0.3
 
 
-def test_two_pass_release_recipe_is_the_release_recipe_with_two_passes_of_the_fit() -> None:
-    """recipes/privileged-lab-hinge3-round2-f25-failures-soft-release-e2.yaml is the release recipe
-    with ``--imitation-epochs 2`` (the command its seeds were trained with), its own name."""
-    got = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE_E2)]))
-    flags = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE), "--imitation-epochs", "2"]))
-    assert got.name == SOFT_RELEASE_E2.stem
+@pytest.mark.parametrize(("recipe", "base", "flag", "expect"), [
+    (SOFT_RELEASE_E2, SOFT_RELEASE, ["--imitation-epochs", "2"],
+     {"imitation_epochs": 2.0, "teacher_release_m": 0.75}),
+    (SOFT_RELEASE_E2_NOISE, SOFT_RELEASE_E2, ["--dagger-noise", "0.1"],
+     {"dagger_noise": 0.1, "imitation_epochs": 2.0}),
+], ids=["two-pass", "noise"])
+def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_with(
+    recipe: Path, base: Path, flag: list[str], expect: dict[str, float]
+) -> None:
+    """recipes/...-soft-release-e2.yaml is the release recipe with ``--imitation-epochs 2`` (run
+    rel-e2), and ...-e2-noise.yaml that with ``--dagger-noise 0.1`` (run e2-n01), each its own name."""
+    got = cmd_train.config_for(_parse(["--recipe", str(recipe)]))
+    flags = cmd_train.config_for(_parse(["--recipe", str(base), *flag]))
+    assert got.name == recipe.stem
     assert dataclasses.replace(got, name=flags.name) == flags
-    assert got.imitation_epochs == 2.0 and got.teacher_release_m == 0.75
-
-
-def test_noise_recipe_is_the_two_pass_recipe_with_the_flag_its_first_seeds_were_trained_with() -> None:
-    """recipes/...-e2-noise.yaml equals the two-pass recipe with --dagger-noise 0.1 (run e2-n01)."""
-    got = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE_E2_NOISE)]))
-    flags = cmd_train.config_for(_parse(["--recipe", str(SOFT_RELEASE_E2), "--dagger-noise", "0.1"]))
-    assert got.name == SOFT_RELEASE_E2_NOISE.stem
-    assert dataclasses.replace(got, name=flags.name) == flags
-    assert got.dagger_noise == 0.1 and got.imitation_epochs == 2.0
+    assert {key: getattr(got, key) for key in expect} == expect
 
 
 def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:

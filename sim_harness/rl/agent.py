@@ -19,7 +19,13 @@ from quadnav_onboard.network import DQN, NetworkConfig
 from quadnav_onboard.policy import masked_argmax
 from sim_harness.rl.replay import Batch
 
-__all__ = ["AgentConfig", "DQNAgent"]
+__all__ = ["AgentConfig", "DQNAgent", "random_allowed"]
+
+
+def random_allowed(allowed: NDArray[np.bool_], rng: np.random.Generator) -> NDArray[np.int64]:
+    """One action per row of ``allowed`` (B, n_actions), uniform over the row's allowed ones (the
+    filter allows at least one in every row, ``quadnav_onboard.shield.allowed_actions``)."""
+    return np.argmax(rng.random(allowed.shape) * allowed, axis=1).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -80,8 +86,8 @@ class DQNAgent:
         explore = rng.random(n) < np.broadcast_to(np.asarray(epsilon, dtype=np.float64), (n,))
         if allowed is None:
             random_actions = rng.integers(0, self.q.config.n_actions, size=n)
-        else:  # uniform over the allowed actions of each row
-            random_actions = np.argmax(rng.random(allowed.shape) * allowed, axis=1)
+        else:
+            random_actions = random_allowed(allowed, rng)
         return np.where(explore, random_actions, actions).astype(np.int64)
 
     def td_target(self, batch: Batch, gamma: float) -> torch.Tensor:

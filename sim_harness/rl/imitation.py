@@ -42,12 +42,12 @@ import torch.nn.functional as F
 from numpy.typing import NDArray
 
 from sim_harness.env import EnvConfig, VecQuadNavEnv
-from sim_harness.rl.agent import DQNAgent
+from sim_harness.rl.agent import DQNAgent, random_allowed
 from sim_harness.world import World
 
 __all__ = [
     "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "Labels", "WorldCurriculum", "collect", "dagger",
-    "first_choice_agreement", "fit", "lr_at", "margin_loss", "random_allowed", "veto_loss",
+    "first_choice_agreement", "fit", "lr_at", "margin_loss", "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -212,16 +212,16 @@ def collect(
         # a label that leaves the filter aside carries no verdict: every primitive counts as allowed
         verdicts = np.where(released[:, None], True, env.allowed) if keep_verdicts else None
         data.add(depth, rel, target, iteration, verdicts, released)
+        # what each env's flight allows: behind the filter its verdicts, alone every primitive
+        flyable = np.where(filtered[:, None], env.allowed, True)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
             if own.any():
-                alone = np.where(filtered[:, None], env.allowed, True)
-                actions[own] = agent.greedy(depth[own], rel[own], alone[own])
+                actions[own] = agent.greedy(depth[own], rel[own], flyable[own])
         if noise > 0.0:
-            jolt = np.flatnonzero(rng.random(env.n_envs) < noise)
-            if jolt.size:
-                actions[jolt] = random_allowed(np.where(filtered[:, None], env.allowed, True)[jolt],
-                                               actions[jolt], rng)
+            jolt = rng.random(env.n_envs) < noise
+            if jolt.any():
+                actions[jolt] = random_allowed(flyable[jolt], rng)
         depth, rel, _, term, trunc, info = env.step(actions)
         for i in np.flatnonzero(term | trunc):
             if finished < episodes:
@@ -231,14 +231,6 @@ def collect(
                 if curriculum is not None:
                     curriculum.record(int(info["world_index"][i]), key)
     return counts
-
-
-def random_allowed(allowed: NDArray[np.bool_], fallback: NDArray[np.int64], rng: np.random.Generator
-                   ) -> NDArray[np.int64]:
-    """One primitive per row of ``allowed`` (N, n_actions), uniform among the row's allowed ones;
-    ``fallback``'s where a row allows none."""
-    scores = np.where(allowed, rng.random(allowed.shape), -1.0)
-    return np.where(allowed.any(axis=1), scores.argmax(axis=1), fallback).astype(np.int64)
 
 
 def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float) -> torch.Tensor:
