@@ -18,7 +18,9 @@ from sim_harness.rl.config import TrainConfig, load_train_config
 from sim_harness.rl.imitation import (
     Aggregate,
     DaggerSettings,
+    DaggerTask,
     collect,
+    dagger,
     first_choice_agreement,
     fit,
     lr_at,
@@ -269,3 +271,31 @@ def test_dagger_noise_is_range_checked_in_the_config() -> None:
     with pytest.raises(ConfigError, match=r"recipe\.yaml.*dagger_noise.*1\.5"):
         load_train_config({"dagger_noise": 1.5}, "recipe.yaml")
     assert load_train_config({"dagger_noise": 0.1}, "recipe.yaml").dagger_noise == 0.1
+
+
+def test_a_tasks_own_noise_overrides_the_settings_noise(monkeypatch) -> None:
+    import sim_harness.rl.imitation as imitation
+
+    seen: list[float] = []
+    real = imitation.collect
+
+    def spy(*args, **kwargs):
+        seen.append(args[-1])  # collect's last positional argument: the noise it flies with
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, "collect", spy)
+    settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
+                              batch_size=8, buffer=200, seed=0, noise=0.3)
+    tasks = [
+        DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher()),  # the settings' noise
+        DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher(), noise=0.0),  # its own
+    ]
+    dagger(DQNAgent(NetworkConfig()), tasks, settings, n_envs=2)
+    assert seen == [0.3, 0.0]
+
+
+def test_lab_dagger_noise_is_range_checked_and_needs_the_lab_layouts() -> None:
+    with pytest.raises(ConfigError, match=r"recipe\.yaml.*lab_dagger_noise.*-0\.1"):
+        load_train_config({"lab_dagger_noise": -0.1}, "recipe.yaml")
+    with pytest.raises(ConfigError, match=r"recipe\.yaml.*'lab_dagger_noise'.*set lab_layouts"):
+        load_train_config({"lab_dagger_noise": 0.0, "dagger_iterations": 1}, "recipe.yaml")

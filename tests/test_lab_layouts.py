@@ -110,6 +110,8 @@ def test_the_lab_task_flies_the_layouts_with_depth_noise_and_a_teacher_within_th
     assert teacher_cfg.respect_filter is False
     strict = lab_task(dataclasses.replace(cfg, teacher_respect_filter=True), lab)
     assert strict.teacher.config.respect_filter is True  # type: ignore[attr-defined]
+    assert task.noise is None  # unset: DAgger's noise, as in the paper worlds
+    assert lab_task(dataclasses.replace(cfg, lab_dagger_noise=0.0), lab).noise == 0.0
 
 
 def test_lab_keys_are_checked_before_a_run_starts(tmp_path):

@@ -231,6 +231,9 @@ class TrainConfig:
     it allows), so the teacher labels states off the paths both keep to (DART, Laskey et al.
     2017). The episodes' outcomes, and the failure curriculum's rates, include these steps.
     0 = none. Range: [0, 1]."""
+    lab_dagger_noise: Annotated[float, pydantic.Field(ge=0, le=1)] | None = None
+    """``dagger_noise`` in the lab layouts' flights (``lab_layouts``) alone, whose deviation limit
+    and geofence end a flight that strays; unset = ``dagger_noise``. Range: [0, 1]."""
     dagger_filtered_share: Annotated[float, pydantic.Field(ge=0, le=1)] = 0.0
     """Share of DAgger's envs in which the network flies behind the depth safety filter (as the
     product does) when it is the one flying; the rest fly it alone. Needs ``shield`` when > 0.
@@ -383,6 +386,11 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'lab_layouts': bad value {cfg.lab_layouts!r}: the lab layouts are "
             "DAgger's: set lab_world, lab_flight_config and dagger_iterations > 0"
+        )
+    if cfg.lab_dagger_noise is not None and cfg.lab_layouts == 0:
+        raise ConfigError(
+            f"{source}: key 'lab_dagger_noise': bad value {cfg.lab_dagger_noise!r}: it is the random "
+            "steps' probability in the lab layouts' flights: set lab_layouts > 0, or leave it unset"
         )
     if cfg.dagger_iterations > 0 and not cfg.imitation_scales and cfg.lab_layouts == 0:
         raise ConfigError(

@@ -338,6 +338,8 @@ class DaggerTask:
     make_env: Callable[..., VecQuadNavEnv] = VecQuadNavEnv
     filter_verdicts: bool = True
     """Keep the filter's verdicts with this task's labels, for the hinge (``veto_weight``)."""
+    noise: float | None = None
+    """Probability of a random step in this task's flights; None = the settings' ``noise``."""
 
 
 def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSettings, n_envs: int) -> list[dict]:
@@ -380,7 +382,8 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         for env, task, curriculum in zip(envs, tasks, curricula, strict=True):
             added, added_released = data.added, data.added_released
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
-                             s.filtered_share, curriculum, task.filter_verdicts, s.noise)
+                             s.filtered_share, curriculum, task.filter_verdicts,
+                             s.noise if task.noise is None else task.noise)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
                 "worlds": len(task.worlds),

@@ -78,4 +78,4 @@ def lab_task(cfg: TrainConfig, lab: LabSetup, teacher: Labeller | None = None) -
             max_deviation_m=max(max_dev - shield.band_margin_m, 0.1), goal_radius_m=env_cfg.goal_radius_m,
         ))
     make_env = functools.partial(NoisyDepthEnv, noise=DepthNoise(), noise_seed=cfg.seed + 7919)
-    return DaggerTask(env_cfg, layouts, teacher, make_env)
+    return DaggerTask(env_cfg, layouts, teacher, make_env, noise=cfg.lab_dagger_noise)
