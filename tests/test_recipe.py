@@ -43,6 +43,9 @@ SOFT_RELEASE = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-sof
 SOFT_RELEASE_E2 = REPO / "recipes" / "privileged-lab-hinge3-round2-f25-failures-soft-release-e2.yaml"
 SOFT_RELEASE_E2_NOISE = SOFT_RELEASE_E2.with_name(SOFT_RELEASE_E2.stem + "-noise.yaml")
 SOFT_RELEASE_E2_NOISE_PAPER = SOFT_RELEASE_E2.with_name(SOFT_RELEASE_E2.stem + "-noise-paper.yaml")
+FAILURES_NOISE_PAPER = PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES.with_name(
+    PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES.stem + "-noise-paper.yaml"
+)
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -263,13 +266,17 @@ def test_release_recipe_is_the_soft_recipe_with_the_teacher_released_at_0_75_m()
      {"dagger_noise": 0.1, "imitation_epochs": 2.0}),
     (SOFT_RELEASE_E2_NOISE_PAPER, SOFT_RELEASE_E2_NOISE, ["--lab-dagger-noise", "0"],
      {"dagger_noise": 0.1, "lab_dagger_noise": 0.0}),
-], ids=["two-pass", "noise", "noise-paper"])
+    (FAILURES_NOISE_PAPER, PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES,
+     ["--dagger-noise", "0.1", "--lab-dagger-noise", "0"],
+     {"dagger_noise": 0.1, "lab_dagger_noise": 0.0, "teacher_release_m": 0.0}),
+], ids=["two-pass", "noise", "noise-paper", "failures-noise-paper"])
 def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_with(
     recipe: Path, base: Path, flag: list[str], expect: dict[str, float]
 ) -> None:
     """recipes/...-soft-release-e2.yaml is the release recipe with ``--imitation-epochs 2`` (run
     rel-e2), ...-e2-noise.yaml that with ``--dagger-noise 0.1`` (run e2-n01), and
-    ...-e2-noise-paper.yaml that with ``--lab-dagger-noise 0``, each its own name."""
+    ...-e2-noise-paper.yaml that with ``--lab-dagger-noise 0``, and ...-failures-noise-paper.yaml the
+    failure recipe with both, each its own name."""
     got = cmd_train.config_for(_parse(["--recipe", str(recipe)]))
     flags = cmd_train.config_for(_parse(["--recipe", str(base), *flag]))
     assert got.name == recipe.stem
