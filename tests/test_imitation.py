@@ -290,8 +290,9 @@ def test_a_tasks_own_noise_overrides_the_settings_noise(monkeypatch) -> None:
         DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher()),  # the settings' noise
         DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher(), noise=0.0),  # its own
     ]
-    dagger(DQNAgent(NetworkConfig()), tasks, settings, n_envs=2)
+    records = dagger(DQNAgent(NetworkConfig()), tasks, settings, n_envs=2)
     assert seen == [0.3, 0.0]
+    assert [r["noise"] for r in records] == [0.3, 0.0]  # dagger.json says what each task flew with
 
 
 def test_lab_dagger_noise_is_range_checked_and_needs_the_lab_layouts() -> None:

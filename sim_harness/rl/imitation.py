@@ -344,12 +344,13 @@ class DaggerTask:
 
 def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSettings, n_envs: int) -> list[dict]:
     """Run DAgger on ``agent.q`` over ``tasks`` (e.g. one per primitive scale, and a lab's
-    layouts under its flight config); returns one record per iteration and task (outcomes,
-    dataset size, the released states in the aggregate, the states this task labelled in this
-    iteration and how many of them its teacher released, loss, wall time; on each iteration's
-    last record the fit's ``agreement`` with the teacher's first choice on the states it fitted,
-    and ``agreement_new`` on the states this iteration added, by the network before it fitted
-    them: states it has not learned from). Every task's teacher must fit by the same loss."""
+    layouts under its flight config); returns one record per iteration and task (outcomes, the
+    random steps' probability it flew with, dataset size, the released states in the aggregate,
+    the states this task labelled in this iteration and how many of them its teacher released,
+    loss, wall time; on each iteration's last record the fit's ``agreement`` with the teacher's
+    first choice on the states it fitted, and ``agreement_new`` on the states this iteration
+    added, by the network before it fitted them: states it has not learned from). Every task's
+    teacher must fit by the same loss."""
     s = settings
     if not tasks:
         raise ValueError("dagger needs at least one task")
@@ -381,12 +382,12 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         agent.q.eval()
         for env, task, curriculum in zip(envs, tasks, curricula, strict=True):
             added, added_released = data.added, data.added_released
+            noise = s.noise if task.noise is None else task.noise
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
-                             s.filtered_share, curriculum, task.filter_verdicts,
-                             s.noise if task.noise is None else task.noise)
+                             s.filtered_share, curriculum, task.filter_verdicts, noise)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
-                "worlds": len(task.worlds),
+                "worlds": len(task.worlds), "noise": noise,
                 "outcomes": counts, "dataset": len(data),
                 "released": int(data.released[:len(data)].sum()),
                 "labelled": data.added - added, "labelled_released": data.added_released - added_released,
