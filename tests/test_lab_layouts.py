@@ -131,12 +131,13 @@ def test_dagger_in_the_lab_labels_the_layouts_states_and_saves_a_model(tmp_path)
         name="lab", shield=True, lab_world="lab01-free", lab_flight_config=FLIGHT, lab_layouts=3,
         imitation_scales=(), dagger_iterations=2, dagger_episodes=3, dagger_filtered_share=0.5,
         imitation_only=True, imitation_epochs=1.0, n_envs=4, batch_size=32, double_dqn=True, dueling=True,
-        depth_history=3, position_history=3, out_dir=str(tmp_path),
+        depth_history=3, position_history=3, out_dir=str(tmp_path), dagger_noise=0.5, lab_dagger_noise=0.0,
     )
     result = train(cfg, progress=False)
     records = json.loads((result.run_dir / "dagger.json").read_text())
     assert [r["iteration"] for r in records] == [0, 1]
     assert all(r["scale_m"] == 0.5 and r["worlds"] == 3 for r in records)
+    assert all(r["noise"] == 0.0 for r in records)  # the lab's own noise, not DAgger's 0.5
     assert sum(records[0]["outcomes"].values()) == 3  # the episodes asked for, each one labelled
     assert records[1]["dataset"] > records[0]["dataset"] > 0
     assert result.model_path.exists()

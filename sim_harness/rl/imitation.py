@@ -384,7 +384,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
             added, added_released = data.added, data.added_released
             noise = s.noise if task.noise is None else task.noise
             counts = collect(env, task.teacher, agent, s.episodes, beta, rng, s.temperature_m, data, it,
-                             s.filtered_share, curriculum, task.filter_verdicts, noise)
+                             s.filtered_share, curriculum, task.filter_verdicts, noise=noise)
             records.append({
                 "iteration": it, "beta": round(beta, 6), "scale_m": task.config.primitives.scale_m,
                 "worlds": len(task.worlds), "noise": noise,
