@@ -15,12 +15,17 @@ filter). Each decision of such a flight falls in one of four classes:
   the filter, had it seen the true geometry (``sim_harness.route.true_geometry_verdict``: the
   same predicted paths, clearance and known space), would have allowed one: boxed in by its view.
 
+With ``--teacher-recipe RECIPE`` the privileged teacher of that training recipe (as DAgger
+builds it, keeping to the filter's verdicts) labels every ``held_back`` state too, and the census
+counts those where it would have flown forward: a student holding back where its teacher goes on
+has not learned the teacher's choice there.
+
 Trace development worlds, never the test set (procedural seed 4242) when choosing anything.
 
 Usage:  python scripts/stall_census.py [--model CKPT] [--world W ... | --procedural N --procedural-seed P]
             [--primitive-scale M | --flight-config FLIGHT.yaml [--layouts N --layout-seed S]]
             [--trials 10] [--seed 0]
-            [--shield on|model] [--json OUT]
+            [--shield on|model] [--teacher-recipe RECIPE] [--json OUT]
 """
 
 from __future__ import annotations
@@ -49,15 +54,19 @@ def classify(q: np.ndarray, allowed: np.ndarray, forward: np.ndarray) -> tuple[n
     return flown, cls
 
 
-def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_noise=None) -> dict:
+def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_noise=None,
+           teacher=None, temperature_m: float = 0.1) -> dict:
     """Fly the eval's flights (under a flight config: its ``limits`` and ``depth_noise``, as
-    ``quadnav-sim eval --flight-config`` flies them); count the classes of each outcome's decisions."""
+    ``quadnav-sim eval --flight-config`` flies them); count the classes of each outcome's decisions.
+    With ``teacher`` (a :class:`~sim_harness.rl.teacher.Teacher`), also count the held-back
+    decisions where it would have flown a forward primitive."""
     from sim_harness.rl.evaluate import evaluate
     from sim_harness.route import true_geometry_verdict
 
     forward = np.asarray(env_cfg.primitives.directions)[:, 0] > 0
     chosen: list[np.ndarray] = []  # the classes of the batch the policy just chose for
     decisions: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # world, trials, class, open
+    taught: list[tuple[int, np.ndarray]] = []  # world, the held-back trials the teacher flies forward in
     world_no = [0]
 
     def act(depth, rel, allowed):
@@ -70,6 +79,10 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
         running = np.flatnonzero(~env.done)
         opened = (true_geometry_verdict(env, running)[0] & forward[None, :]).any(axis=1)
         decisions.append((world_no[0], running, chosen[0][running], opened))
+        held = running[chosen[0][running] == 1]
+        if teacher is not None and held.size:
+            _, moves, _ = teacher.label(env, depth, rel, temperature_m)
+            taught.append((world_no[0], held[forward[moves[held]]]))
 
     def next_world(_w) -> None:
         world_no[0] += 1
@@ -85,13 +98,17 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
             boxed_by_view[outcome] += int(k == 3 and o)
     failures = Counter(r.world for r in rows if r.outcome not in ("goal", "crash"))
     outcomes = Counter(r.outcome for r in rows)
-    return {
+    out = {
         "flights": len(rows),
         "outcomes": dict(outcomes),
         "decisions": {o: {k: int(c[k]) for k in CLASSES} for o, c in sorted(counts.items())},
         "boxed_in_by_the_view": {o: int(boxed_by_view[o]) for o in sorted(counts)},
         "failures_by_world": dict(failures.most_common()),
     }
+    if teacher is not None:
+        onward = Counter(rows[w * trials + t].outcome for w, trials_ in taught for t in trials_.tolist())
+        out["held_back_teacher_forward"] = {o: int(onward[o]) for o in sorted(counts)}
+    return out
 
 
 def main() -> int:
@@ -100,18 +117,35 @@ def main() -> int:
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_flights_flags(ap, shield_default="on", trials_default=10)  # the eval's, its filter forced on
+    ap.add_argument("--teacher-recipe", default=None, metavar="RECIPE",
+                    help="also label the held-back states with this training recipe's privileged teacher")
     ap.add_argument("--json", default=None, metavar="OUT")
     args = ap.parse_args()
     if args.shield == "off":
         print("stall_census: it counts flights with the filter (--shield on or model)", file=sys.stderr)
         return 2
+    teacher, temperature_m = None, 0.1
+    if args.teacher_recipe is not None:
+        from quadnav_onboard.config import ConfigError
+        from sim_harness.cmd_train import load_recipe
+        from sim_harness.rl.config import load_train_config
+        from sim_harness.rl.teacher import Teacher
+        from sim_harness.rl.train import teacher_config
+
+        try:
+            cfg = load_train_config(load_recipe(args.teacher_recipe), args.teacher_recipe)
+        except (ConfigError, OSError) as e:
+            print(f"stall_census: {e}", file=sys.stderr)
+            return 2
+        teacher = Teacher(teacher_config(cfg, respect_filter=cfg.teacher_respect_filter))
+        temperature_m = cfg.imitation_temperature_m
     args.model = args.model or str(DEFAULT_MODEL_PATH)
     loaded = load_flights("stall_census", args.model, args)
     if loaded is None:
         return 2
     policy, flights = loaded
     out = census(policy, flights.worlds, args.trials, args.seed, flights.env_config, flights.limits,
-                 flights.depth_noise)
+                 flights.depth_noise, teacher, temperature_m)
     out["model"] = args.model
     print(f"{out['flights']} flights: {out['outcomes']}")
     print(f"{'outcome':>10} {'decisions':>9} " + " ".join(f"{k:>15}" for k in CLASSES))
@@ -120,6 +154,8 @@ def main() -> int:
         print(f"{o:>10} {n:9d} " + " ".join(f"{c[k]:7d} ({c[k] / max(n, 1):5.1%})" for k in CLASSES))
     print("boxed in, though the true geometry would allow a forward primitive:", out["boxed_in_by_the_view"])
     print("flights short of the goal without a crash, by world:", out["failures_by_world"])
+    if teacher is not None:
+        print("held back where the teacher flies forward:", out["held_back_teacher_forward"])
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)

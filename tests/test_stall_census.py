@@ -100,3 +100,37 @@ def test_under_a_flight_config_the_census_flies_what_eval_flies_there(tmp_path) 
     both = subprocess.run([sys.executable, str(SCRIPT), *flags, "--max-steps", "10"],
                           capture_output=True, text=True, cwd=repo)
     assert both.returncode == 2 and "--flight-config sets" in both.stderr
+
+
+def test_the_teacher_labels_the_held_back_states_and_goes_on_where_the_way_is_open() -> None:
+    """A student that always hovers holds back at every decision in an open world; the privileged
+    teacher, asked in the same states, flies forward in every one."""
+    from quadnav_onboard.policy import DEFAULT_MODEL_PATH, Policy
+    from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
+    from sim_harness.rl.config import TrainConfig
+    from sim_harness.rl.evaluate import env_config_for_policy
+    from sim_harness.rl.teacher import Teacher
+    from sim_harness.rl.train import teacher_config
+    from sim_harness.world import parse_world
+
+    hover = DEFAULT_DIRECTIONS.index((0, 0, 0))
+
+    class Hoverer:
+        def q_values_batch(self, depth, rel):
+            q = np.zeros((depth.shape[0], len(DEFAULT_DIRECTIONS)), dtype=np.float32)
+            q[:, hover] = 1.0
+            return q
+
+    world = parse_world({
+        "name": "open",
+        "path": {"waypoints": [[0.0, 0.0, 2.0], [8.0, 0.0, 2.0]], "speed_m_s": 1.0},
+        "bounds": {"floor_z": 0.0, "ceiling_z": 4.0},
+        "obstacles": [],
+    })
+    cfg = env_config_for_policy(Policy.from_path(DEFAULT_MODEL_PATH), max_steps=6)
+    teacher = Teacher(teacher_config(TrainConfig(), respect_filter=True))
+    out = _module().census(Hoverer(), [world], 2, 0, cfg, teacher=teacher, temperature_m=0.1)
+    held = {o: c["held_back"] for o, c in out["decisions"].items()}
+    assert sum(held.values()) > 0 and sum(c["forward"] for c in out["decisions"].values()) == 0
+    assert out["held_back_teacher_forward"] == held
+    assert "held_back_teacher_forward" not in _module().census(Hoverer(), [world], 1, 0, cfg)
