@@ -15,10 +15,12 @@ filter). Each decision of such a flight falls in one of four classes:
   the filter, had it seen the true geometry (``sim_harness.route.true_geometry_verdict``: the
   same predicted paths, clearance and known space), would have allowed one: boxed in by its view.
 
-With ``--teacher-recipe RECIPE`` the privileged teacher of that training recipe (as DAgger
-builds it, keeping to the filter's verdicts) labels every ``held_back`` state too, and the census
-counts those where it would have flown forward: a student holding back where its teacher goes on
-has not learned the teacher's choice there.
+With ``--teacher-recipe RECIPE`` the privileged teacher that labels that training recipe's
+paper-world DAgger task at the flights' scale (``sim_harness.rl.train.privileged_teacher``)
+labels every ``held_back`` state too, and the census counts those where it would have flown
+forward: a student holding back where its teacher goes on has not learned the teacher's choice
+there. A recipe with the filter teacher, and flights under a flight config (whose lab task has a
+teacher of its own), are refused.
 
 Trace development worlds, never the test set (procedural seed 4242) when choosing anything.
 
@@ -106,7 +108,7 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
         "failures_by_world": dict(failures.most_common()),
     }
     if teacher is not None:
-        onward = Counter(rows[w * trials + t].outcome for w, trials_ in taught for t in trials_.tolist())
+        onward = Counter(rows[w * trials + t].outcome for w, on in taught for t in on.tolist())
         out["held_back_teacher_forward"] = {o: int(onward[o]) for o in sorted(counts)}
     return out
 
@@ -124,26 +126,30 @@ def main() -> int:
     if args.shield == "off":
         print("stall_census: it counts flights with the filter (--shield on or model)", file=sys.stderr)
         return 2
+    args.model = args.model or str(DEFAULT_MODEL_PATH)
+    loaded = load_flights("stall_census", args.model, args)
+    if loaded is None:
+        return 2
+    policy, flights = loaded
     teacher, temperature_m = None, 0.1
     if args.teacher_recipe is not None:
         from quadnav_onboard.config import ConfigError
         from sim_harness.cmd_train import load_recipe
         from sim_harness.rl.config import load_train_config
-        from sim_harness.rl.teacher import Teacher
-        from sim_harness.rl.train import teacher_config
+        from sim_harness.rl.train import privileged_teacher
 
         try:
             cfg = load_train_config(load_recipe(args.teacher_recipe), args.teacher_recipe)
         except (ConfigError, OSError) as e:
             print(f"stall_census: {e}", file=sys.stderr)
             return 2
-        teacher = Teacher(teacher_config(cfg, respect_filter=cfg.teacher_respect_filter))
+        if cfg.imitation_teacher != "privileged" or args.flight_config:
+            print(f"stall_census: --teacher-recipe {args.teacher_recipe}: only the privileged teacher of the "
+                  f"paper worlds' flights (imitation_teacher {cfg.imitation_teacher!r}, "
+                  f"--flight-config {args.flight_config!r})", file=sys.stderr)
+            return 2
+        teacher = privileged_teacher(cfg, flights.env_config.primitives.scale_m)
         temperature_m = cfg.imitation_temperature_m
-    args.model = args.model or str(DEFAULT_MODEL_PATH)
-    loaded = load_flights("stall_census", args.model, args)
-    if loaded is None:
-        return 2
-    policy, flights = loaded
     out = census(policy, flights.worlds, args.trials, args.seed, flights.env_config, flights.limits,
                  flights.depth_noise, teacher, temperature_m)
     out["model"] = args.model

@@ -109,8 +109,7 @@ def test_the_teacher_labels_the_held_back_states_and_goes_on_where_the_way_is_op
     from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
     from sim_harness.rl.config import TrainConfig
     from sim_harness.rl.evaluate import env_config_for_policy
-    from sim_harness.rl.teacher import Teacher
-    from sim_harness.rl.train import teacher_config
+    from sim_harness.rl.train import privileged_teacher
     from sim_harness.world import parse_world
 
     hover = DEFAULT_DIRECTIONS.index((0, 0, 0))
@@ -128,9 +127,34 @@ def test_the_teacher_labels_the_held_back_states_and_goes_on_where_the_way_is_op
         "obstacles": [],
     })
     cfg = env_config_for_policy(Policy.from_path(DEFAULT_MODEL_PATH), max_steps=6)
-    teacher = Teacher(teacher_config(TrainConfig(), respect_filter=True))
+    teacher = privileged_teacher(TrainConfig(teacher_respect_filter=True), cfg.primitives.scale_m)
+    assert teacher.config.respect_filter
     out = _module().census(Hoverer(), [world], 2, 0, cfg, teacher=teacher, temperature_m=0.1)
     held = {o: c["held_back"] for o, c in out["decisions"].items()}
     assert sum(held.values()) > 0 and sum(c["forward"] for c in out["decisions"].values()) == 0
     assert out["held_back_teacher_forward"] == held
     assert "held_back_teacher_forward" not in _module().census(Hoverer(), [world], 1, 0, cfg)
+
+
+def test_a_teacher_the_census_cannot_rebuild_is_refused() -> None:
+    """The filter teacher's recipes, and flights under a flight config (the lab task's teacher is
+    its own), exit 2 with the reason."""
+    repo = SCRIPT.parents[1]
+    for extra in (["--teacher-recipe", str(repo / "recipes" / "filter-teacher.yaml"), "--world", "env01"],
+                  ["--teacher-recipe", str(repo / "recipes" / "shipped.yaml"),
+                   "--flight-config", str(repo / "config" / "flight.yaml"), "--world", "lab01"]):
+        run = subprocess.run([sys.executable, str(SCRIPT), *extra, "--trials", "1"],
+                             capture_output=True, text=True)
+        assert run.returncode == 2 and "only the privileged teacher" in run.stderr, run.stderr
+
+
+def test_the_privileged_teacher_keeps_to_the_filter_only_where_its_task_learns_from_it() -> None:
+    from sim_harness.rl.config import TrainConfig
+    from sim_harness.rl.train import privileged_teacher
+
+    everywhere = TrainConfig(teacher_respect_filter=True)
+    at_half = TrainConfig(teacher_respect_filter=True, imitation_filter_scales=(0.5,))
+    assert privileged_teacher(everywhere, 1.0).config.respect_filter
+    assert privileged_teacher(at_half, 0.5).config.respect_filter
+    assert not privileged_teacher(at_half, 1.0).config.respect_filter
+    assert not privileged_teacher(TrainConfig(), 0.5).config.respect_filter

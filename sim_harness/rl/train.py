@@ -238,13 +238,22 @@ def dagger_tasks(cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World],
         scaled_cfg, scaled = (
             at_primitive_scale(env_cfg, worlds, s) if s != REFERENCE_SCALE_M else (env_cfg, list(worlds))
         )
-        lessons = not cfg.imitation_filter_scales or s in cfg.imitation_filter_scales
-        teacher: Labeller = (
-            filter_teacher if filter_teacher is not None
-            else Teacher(teacher_config(cfg, respect_filter=cfg.teacher_respect_filter and lessons))
-        )
-        tasks.append(DaggerTask(scaled_cfg, scaled, teacher, filter_verdicts=lessons))
+        teacher: Labeller = filter_teacher if filter_teacher is not None else privileged_teacher(cfg, s)
+        tasks.append(DaggerTask(scaled_cfg, scaled, teacher, filter_verdicts=filter_lessons(cfg, s)))
     return tasks
+
+
+def filter_lessons(cfg: TrainConfig, scale_m: float) -> bool:
+    """Whether DAgger's task at ``scale_m`` learns from the filter's verdicts: at every scale, or
+    only at ``imitation_filter_scales`` when that is set."""
+    return not cfg.imitation_filter_scales or scale_m in cfg.imitation_filter_scales
+
+
+def privileged_teacher(cfg: TrainConfig, scale_m: float) -> Teacher:
+    """The privileged teacher that labels DAgger's paper-world task at ``scale_m``: it keeps to
+    the filter's verdicts (``teacher_respect_filter``) where that task learns from them."""
+    respect = cfg.teacher_respect_filter and filter_lessons(cfg, scale_m)
+    return Teacher(teacher_config(cfg, respect_filter=respect))
 
 
 def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Sequence[World],
