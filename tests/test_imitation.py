@@ -21,12 +21,13 @@ from sim_harness.rl.imitation import (
     DaggerTask,
     collect,
     dagger,
+    decisive_rows,
     first_choice_agreement,
     fit,
     lr_at,
     margin_loss,
 )
-from sim_harness.rl.teacher import Teacher
+from sim_harness.rl.teacher import Teacher, soft_targets
 from sim_harness.rl.train import train
 from sim_harness.world import parse_world
 
@@ -300,3 +301,93 @@ def test_lab_dagger_noise_is_range_checked_and_needs_the_lab_layouts() -> None:
         load_train_config({"lab_dagger_noise": -0.1}, "recipe.yaml")
     with pytest.raises(ConfigError, match=r"recipe\.yaml.*'lab_dagger_noise'.*set lab_layouts"):
         load_train_config({"lab_dagger_noise": 0.0, "dagger_iterations": 1}, "recipe.yaml")
+
+
+def test_decisive_rows_are_those_whose_first_choice_leads_the_second_by_the_ratio() -> None:
+    """Soft targets softmax(-cost / T) with T = 0.25: a first choice 0.5 m cheaper than the second
+    has log ratio 2, one 0.05 m cheaper 0.2; a row of exact ties has 0."""
+    temperature = 0.25
+    costs = np.array([[0.0, 0.5, 1.0], [0.0, 0.05, 3.0], [0.2, 0.2, 0.2]])
+    target = torch.as_tensor(soft_targets(costs, temperature))
+    assert decisive_rows(target, 0.3 / temperature).tolist() == [True, False, False]
+    assert decisive_rows(target, 0.04 / temperature).tolist() == [True, True, False]
+    one_hot = torch.tensor([[1.0, 0.0, 0.0]])  # the second choice's probability underflowed to 0
+    assert decisive_rows(one_hot, 50.0).tolist() == [True]
+
+
+def test_the_margin_loss_counts_only_the_given_rows_in_its_batch_mean() -> None:
+    q = torch.tensor([[2.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 1.0, 3.0]])
+    expert = torch.tensor([0, 0, 2])
+    rows = torch.tensor([True, False, True])
+    assert float(margin_loss(q, expert, 1.0, rows)) == pytest.approx((0.0 + 0.0 + 0.0) / 3)
+    assert float(margin_loss(q, torch.tensor([0, 0, 1]), 1.0, rows)) == pytest.approx(3.0 / 3)
+    assert float(margin_loss(q, expert, 1.0, torch.tensor([False, True, False]))) == pytest.approx(0.5 / 3)
+
+
+def test_the_gated_margin_leaves_near_ties_to_the_soft_targets(side_rule) -> None:
+    """Targets whose first choice is 0.03 m of cost cheaper than the second (T = 0.3): with the
+    margin limited to a 0.1 m gap no row is decisive, so the fit is the soft targets' fit alone,
+    weight for weight; the margin in every state changes it."""
+    rng = np.random.default_rng(0)
+    n = 64
+    depth, rel, _ = side_rule(rng, n)
+    costs = np.full((n, 18), 2.0)
+    costs[:, HOVER], costs[:, FORWARD] = 0.0, 0.03
+    temperature = 0.3
+    data = Aggregate(n, (1, 32, 32), (1, 3), 18)
+    data.add(depth, rel, soft_targets(costs, temperature), 0)
+    weights = {}
+    for name, margin_weight, ratio in (("none", 0.0, 0.0), ("gated", 1.0, 0.1 / temperature),
+                                       ("everywhere", 1.0, 0.0)):
+        torch.manual_seed(0)
+        agent = DQNAgent(NetworkConfig())
+        opt = torch.optim.Adam(agent.q.parameters(), lr=1e-3)
+        fit(agent, data, 2.0, 32, np.random.default_rng(0), opt, "cross_entropy", margin_weight=margin_weight,
+            margin=1.0, margin_min_log_ratio=ratio)
+        weights[name] = torch.cat([p.detach().flatten() for p in agent.q.parameters()])
+    assert torch.equal(weights["gated"], weights["none"])
+    assert not torch.allclose(weights["everywhere"], weights["none"])
+
+
+def test_the_gated_margin_needs_the_cross_entropy_fit_and_a_non_negative_ratio(side_rule) -> None:
+    depth, rel, _ = side_rule(np.random.default_rng(0), 8)
+    data = Aggregate(8, (1, 32, 32), (1, 3), 18)
+    data.add(depth, rel, np.full((8, 18), 1 / 18, np.float32), 0)
+    agent = DQNAgent(NetworkConfig())
+    opt = torch.optim.Adam(agent.q.parameters(), lr=1e-3)
+    with pytest.raises(ValueError, match="cross-entropy"):
+        fit(agent, data, 1.0, 8, np.random.default_rng(0), opt, "huber", margin_weight=1.0,
+            margin_min_log_ratio=1.0)
+    with pytest.raises(ValueError, match="margin_min_log_ratio"):
+        fit(agent, data, 1.0, 8, np.random.default_rng(0), opt, margin_weight=1.0, margin_min_log_ratio=-1.0)
+
+
+def test_dagger_passes_the_margins_least_gap_to_the_fit_as_a_log_ratio(monkeypatch) -> None:
+    import sim_harness.rl.imitation as imitation
+
+    seen: list[float] = []
+    real = imitation.fit
+
+    def spy(*args):
+        seen.append(args[-1])
+        return real(*args)
+
+    monkeypatch.setattr(imitation, "fit", spy)
+    settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
+                              batch_size=8, buffer=200, seed=0, margin_weight=1.0, margin_min_gap_m=0.1)
+    dagger(DQNAgent(NetworkConfig()), [DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher())],
+           settings, n_envs=2)
+    assert seen == [pytest.approx(0.4)]
+
+
+def test_imitation_margin_min_gap_is_range_checked_and_needs_the_margin_and_the_privileged_teacher() -> None:
+    key = "imitation_margin_min_gap_m"
+    with pytest.raises(ConfigError, match=rf"recipe\.yaml.*{key}.*-0\.1"):
+        load_train_config({key: -0.1}, "recipe.yaml")
+    with pytest.raises(ConfigError, match=rf"recipe\.yaml.*'{key}'.*imitation_margin_weight > 0"):
+        load_train_config({key: 0.1, "dagger_iterations": 1}, "recipe.yaml")
+    with pytest.raises(ConfigError, match=rf"'{key}'.*imitation_teacher: privileged"):
+        load_train_config({key: 0.1, "imitation_margin_weight": 1.0, "imitation_teacher": "filter",
+                           "init_model": "m.pt", "shield": True}, "recipe.yaml")
+    cfg = load_train_config({key: 0.1, "imitation_margin_weight": 1.0}, "recipe.yaml")
+    assert cfg.imitation_margin_min_gap_m == 0.1

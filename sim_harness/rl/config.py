@@ -173,6 +173,11 @@ class TrainConfig:
     """Weight of DQfD's large-margin loss in the imitation fits (Hester et al. 2018): the label's
     first choice should lead every other Q-value by ``imitation_margin``. 0 = off.
     Range: [0, 100]."""
+    imitation_margin_min_gap_m: Annotated[float, pydantic.Field(ge=0, le=10)] = 0.0
+    """The large-margin loss (``imitation_margin_weight``) only in the states where the privileged
+    teacher's first choice costs at least this much less than its second (metres of its cost,
+    read from the soft targets as T·ln(p1 / p2)): where it is decisive, leaving near-ties to the
+    soft targets. 0: in every state. Range: [0, 10]."""
     imitation_veto_weight: Annotated[float, pydantic.Field(ge=0, le=100)] = 0.0
     """Weight of a hinge on the depth safety filter's verdicts in the imitation fits: the best
     primitive the filter allowed in a labelled state should lead every one it vetoed by
@@ -386,6 +391,14 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
         raise ConfigError(
             f"{source}: key 'lab_layouts': bad value {cfg.lab_layouts!r}: the lab layouts are "
             "DAgger's: set lab_world, lab_flight_config and dagger_iterations > 0"
+        )
+    if cfg.imitation_margin_min_gap_m > 0 and not (
+        cfg.imitation_margin_weight > 0 and cfg.imitation_teacher == "privileged"
+    ):
+        raise ConfigError(
+            f"{source}: key 'imitation_margin_min_gap_m': bad value {cfg.imitation_margin_min_gap_m!r}: "
+            "it limits the large-margin loss to the privileged teacher's decisive states: set "
+            "imitation_margin_weight > 0 and imitation_teacher: privileged"
         )
     if cfg.lab_dagger_noise is not None and cfg.lab_layouts == 0:
         raise ConfigError(

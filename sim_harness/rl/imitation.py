@@ -47,7 +47,7 @@ from sim_harness.world import World
 
 __all__ = [
     "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "Labels", "WorldCurriculum", "collect", "dagger",
-    "first_choice_agreement", "fit", "lr_at", "margin_loss", "veto_loss",
+    "decisive_rows", "first_choice_agreement", "fit", "lr_at", "margin_loss", "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -70,6 +70,9 @@ class DaggerSettings:
     updates: int = 0
     margin_weight: float = 0.0
     margin: float = 1.0
+    margin_min_gap_m: float = 0.0
+    """The large-margin loss only where the teacher's first choice costs at least this much less
+    than its second (metres of its cost); 0: in every state."""
     lr_end: float | None = None
     veto_weight: float = 0.0
     noise: float = 0.0
@@ -233,13 +236,27 @@ def collect(
     return counts
 
 
-def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float) -> torch.Tensor:
+def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float,
+                rows: torch.Tensor | None = None) -> torch.Tensor:
     """The large-margin classification loss of DQfD (Hester et al. 2018), batch mean:
     max_a [Q(s, a) + ``margin`` if a is not the expert's action] - Q(s, a_E). Zero where the
-    expert's action ``expert`` (N,) leads every other by at least ``margin``."""
+    expert's action ``expert`` (N,) leads every other by at least ``margin``, and in the rows
+    outside ``rows`` (N,) bool, when given (the mean is still over all N)."""
     penalty = torch.full_like(q, float(margin))
     penalty.scatter_(1, expert[:, None], 0.0)
-    return ((q + penalty).max(dim=1).values - q.gather(1, expert[:, None]).squeeze(1)).mean()
+    per_row = (q + penalty).max(dim=1).values - q.gather(1, expert[:, None]).squeeze(1)
+    if rows is not None:
+        per_row = per_row * rows.to(per_row.dtype)
+    return per_row.mean()
+
+
+def decisive_rows(target: torch.Tensor, min_log_ratio: float) -> torch.Tensor:
+    """The rows (N,) of soft targets (N, A) whose first choice is at least ``exp(min_log_ratio)``
+    times as likely as their second: with the privileged teacher's targets, softmax(-cost / T),
+    the states where its first choice costs at least ``min_log_ratio`` × T less than any other."""
+    top2 = target.topk(2, dim=1).values
+    tiny = torch.finfo(target.dtype).tiny
+    return torch.log(top2[:, 0].clamp_min(tiny)) - torch.log(top2[:, 1].clamp_min(tiny)) >= min_log_ratio
 
 
 def veto_loss(q: torch.Tensor, allowed: torch.Tensor, margin: float) -> torch.Tensor:
@@ -258,19 +275,24 @@ def veto_loss(q: torch.Tensor, allowed: torch.Tensor, margin: float) -> torch.Te
 
 def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
         optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy", updates: int = 0,
-        margin_weight: float = 0.0, margin: float = 1.0, veto_weight: float = 0.0
-        ) -> tuple[float, float]:
+        margin_weight: float = 0.0, margin: float = 1.0, veto_weight: float = 0.0,
+        margin_min_log_ratio: float = 0.0) -> tuple[float, float]:
     """``epochs`` passes (fractions allowed), or ``updates`` minibatches when > 0, of cross-entropy
     between softmax(Q) and the targets (``loss_kind`` "cross_entropy"), or of the Huber loss
     between Q and the targets ("huber"), plus ``margin_weight`` times :func:`margin_loss` towards
-    the targets' arg-max and ``veto_weight`` times :func:`veto_loss` on the filter's verdicts
+    the targets' arg-max (when ``margin_min_log_ratio`` > 0, in the :func:`decisive_rows` alone;
+    cross-entropy only) and ``veto_weight`` times :func:`veto_loss` on the filter's verdicts
     kept with them; returns the mean loss and the share of the last tenth's samples whose
     arg-max Q is the teacher's first choice. The target network is set to the result."""
     if loss_kind not in ("cross_entropy", "huber"):
         raise ValueError(f"loss_kind must be 'cross_entropy' or 'huber', got {loss_kind!r}")
-    if not (margin_weight >= 0 and veto_weight >= 0 and margin > 0):
-        raise ValueError(f"need margin_weight >= 0, veto_weight >= 0 and margin > 0, got "
-                         f"{margin_weight!r}, {veto_weight!r}, {margin!r}")
+    if not (margin_weight >= 0 and veto_weight >= 0 and margin > 0 and margin_min_log_ratio >= 0):
+        raise ValueError(f"need margin_weight >= 0, veto_weight >= 0, margin > 0 and "
+                         f"margin_min_log_ratio >= 0, got {margin_weight!r}, {veto_weight!r}, "
+                         f"{margin!r}, {margin_min_log_ratio!r}")
+    if margin_min_log_ratio > 0 and loss_kind != "cross_entropy":
+        raise ValueError("margin_min_log_ratio reads the targets as probabilities: it needs the "
+                         f"cross-entropy fit, got {loss_kind!r}")
     n_batches = updates if updates > 0 else max(1, round(epochs * len(data) / batch_size))
     losses: list[float] = []
     agree: list[float] = []
@@ -286,7 +308,8 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
         else:
             loss = -(target * F.log_softmax(q, dim=1)).sum(dim=1).mean()
         if margin_weight > 0:
-            loss = loss + margin_weight * margin_loss(q, target.argmax(dim=1), margin)
+            rows = decisive_rows(target, margin_min_log_ratio) if margin_min_log_ratio > 0 else None
+            loss = loss + margin_weight * margin_loss(q, target.argmax(dim=1), margin, rows)
         if veto_weight > 0:
             allowed = torch.as_tensor(data.allowed[idx], device=q.device)
             loss = loss + veto_weight * veto_loss(q, allowed, margin)
@@ -399,7 +422,8 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         new_rows = np.flatnonzero(data.iteration[:len(data)] == it)
         agreement_new = first_choice_agreement(agent, data, new_rows)
         loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, loss_kind, s.updates,
-                              s.margin_weight, s.margin, s.veto_weight)
+                              s.margin_weight, s.margin, s.veto_weight,
+                              s.margin_min_gap_m / s.temperature_m)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["agreement_new"] = None if agreement_new is None else round(agreement_new, 4)
