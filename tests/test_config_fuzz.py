@@ -120,6 +120,7 @@ MEANINGFUL: dict[tuple[str, str], str] = {
     ("train.dagger_noise", "zero"): "no random steps in DAgger's flights",
     ("train.imitation_updates", "zero"): "the fit runs imitation_epochs passes instead",
     ("train.imitation_margin_weight", "zero"): "the fit has no large-margin term",
+    ("train.imitation_margin_min_gap_m", "zero"): "the large-margin loss in every state",
     ("train.imitation_veto_weight", "zero"): "the fit has no hinge on the filter's verdicts",
     ("train.lab_layouts", "zero"): "no lab layouts (DAgger flies imitation_scales only)",
     ("train.lab_layout_seed", "zero"): "a seed",
