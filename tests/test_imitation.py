@@ -380,6 +380,22 @@ def test_dagger_passes_the_margins_least_gap_to_the_fit_as_a_log_ratio(monkeypat
     assert seen == [pytest.approx(0.4)]
 
 
+def test_dagger_refuses_the_margins_least_gap_with_a_huber_teacher_before_it_flies(monkeypatch) -> None:
+    import sim_harness.rl.imitation as imitation
+
+    class HuberTeacher(Teacher):
+        loss = "huber"
+
+    flown: list[int] = []
+    monkeypatch.setattr(imitation, "collect", lambda *args, **kwargs: flown.append(1))
+    settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
+                              batch_size=8, buffer=200, seed=0, margin_weight=1.0, margin_min_gap_m=0.1)
+    with pytest.raises(ValueError, match=r"margin_min_gap_m.*'huber'"):
+        dagger(DQNAgent(NetworkConfig()), [DaggerTask(EnvConfig(max_steps=4), [_world()], HuberTeacher())],
+               settings, n_envs=2)
+    assert flown == []
+
+
 def test_imitation_margin_min_gap_is_range_checked_and_needs_the_margin_and_the_privileged_teacher() -> None:
     key = "imitation_margin_min_gap_m"
     with pytest.raises(ConfigError, match=rf"recipe\.yaml.*{key}.*-0\.1"):

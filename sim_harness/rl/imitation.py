@@ -381,6 +381,9 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
     if len(losses) != 1:
         raise ValueError(f"dagger: the tasks' teachers fit by different losses: {sorted(losses)}")
     (loss_kind,) = losses
+    if s.margin_min_gap_m > 0 and loss_kind != "cross_entropy":
+        raise ValueError(f"dagger: margin_min_gap_m {s.margin_min_gap_m!r} reads the teacher's soft "
+                         f"targets, but its labels fit by {loss_kind!r}")
     env0 = tasks[0].config
     rng = np.random.default_rng(s.seed + 7)
     n_actions = env0.primitives.build().n_actions
