@@ -40,6 +40,7 @@ from collections import Counter
 import numpy as np
 
 CLASSES = ("forward", "held_back", "overruled_back", "boxed_in")
+HELD_BACK = CLASSES.index("held_back")
 
 
 def classify(q: np.ndarray, allowed: np.ndarray, forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,7 +58,7 @@ def classify(q: np.ndarray, allowed: np.ndarray, forward: np.ndarray) -> tuple[n
 
 
 def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_noise=None,
-           teacher=None, temperature_m: float = 0.1) -> dict:
+           teacher=None) -> dict:
     """Fly the eval's flights (under a flight config: its ``limits`` and ``depth_noise``, as
     ``quadnav-sim eval --flight-config`` flies them); count the classes of each outcome's decisions.
     With ``teacher`` (a :class:`~sim_harness.rl.teacher.Teacher`), also count the held-back
@@ -81,10 +82,9 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
         running = np.flatnonzero(~env.done)
         opened = (true_geometry_verdict(env, running)[0] & forward[None, :]).any(axis=1)
         decisions.append((world_no[0], running, chosen[0][running], opened))
-        held = running[chosen[0][running] == 1]
+        held = running[chosen[0][running] == HELD_BACK]
         if teacher is not None and held.size:
-            _, moves, _ = teacher.label(env, depth, rel, temperature_m)
-            taught.append((world_no[0], held[forward[moves[held]]]))
+            taught.append((world_no[0], held[forward[teacher.labels(env, held)]]))
 
     def next_world(_w) -> None:
         world_no[0] += 1
@@ -131,7 +131,7 @@ def main() -> int:
     if loaded is None:
         return 2
     policy, flights = loaded
-    teacher, temperature_m = None, 0.1
+    teacher = None
     if args.teacher_recipe is not None:
         from quadnav_onboard.config import ConfigError
         from sim_harness.cmd_train import load_recipe
@@ -149,9 +149,8 @@ def main() -> int:
                   f"--flight-config {args.flight_config!r})", file=sys.stderr)
             return 2
         teacher = privileged_teacher(cfg, flights.env_config.primitives.scale_m)
-        temperature_m = cfg.imitation_temperature_m
     out = census(policy, flights.worlds, args.trials, args.seed, flights.env_config, flights.limits,
-                 flights.depth_noise, teacher, temperature_m)
+                 flights.depth_noise, teacher)
     out["model"] = args.model
     print(f"{out['flights']} flights: {out['outcomes']}")
     print(f"{'outcome':>10} {'decisions':>9} " + " ".join(f"{k:>15}" for k in CLASSES))

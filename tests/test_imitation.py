@@ -368,9 +368,9 @@ def test_dagger_passes_the_margins_least_gap_to_the_fit_as_a_log_ratio(monkeypat
     seen: list[float] = []
     real = imitation.fit
 
-    def spy(*args):
-        seen.append(args[-1])
-        return real(*args)
+    def spy(*args, **kwargs):
+        seen.append(kwargs["margin_min_log_ratio"])
+        return real(*args, **kwargs)
 
     monkeypatch.setattr(imitation, "fit", spy)
     settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,

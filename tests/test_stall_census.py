@@ -129,7 +129,7 @@ def test_the_teacher_labels_the_held_back_states_and_goes_on_where_the_way_is_op
     cfg = env_config_for_policy(Policy.from_path(DEFAULT_MODEL_PATH), max_steps=6)
     teacher = privileged_teacher(TrainConfig(teacher_respect_filter=True), cfg.primitives.scale_m)
     assert teacher.config.respect_filter
-    out = _module().census(Hoverer(), [world], 2, 0, cfg, teacher=teacher, temperature_m=0.1)
+    out = _module().census(Hoverer(), [world], 2, 0, cfg, teacher=teacher)
     held = {o: c["held_back"] for o, c in out["decisions"].items()}
     assert sum(held.values()) > 0 and sum(c["forward"] for c in out["decisions"].values()) == 0
     assert out["held_back_teacher_forward"] == held

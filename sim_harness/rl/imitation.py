@@ -426,7 +426,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         agreement_new = first_choice_agreement(agent, data, new_rows)
         loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, loss_kind, s.updates,
                               s.margin_weight, s.margin, s.veto_weight,
-                              s.margin_min_gap_m / s.temperature_m)
+                              margin_min_log_ratio=s.margin_min_gap_m / s.temperature_m)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["agreement_new"] = None if agreement_new is None else round(agreement_new, 4)
