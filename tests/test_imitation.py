@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from quadnav_onboard.checkpoint import load_checkpoint
-from quadnav_onboard.config import ConfigError
+from quadnav_onboard.config import ConfigError, PrimitiveConfig
 from quadnav_onboard.network import NetworkConfig
 from quadnav_onboard.primitives import DEFAULT_DIRECTIONS
 from sim_harness.env import EnvConfig, VecQuadNavEnv
@@ -24,6 +24,7 @@ from sim_harness.rl.imitation import (
     decisive_rows,
     first_choice_agreement,
     fit,
+    holding_primitives,
     lr_at,
     margin_loss,
 )
@@ -407,3 +408,92 @@ def test_imitation_margin_min_gap_is_range_checked_and_needs_the_margin_and_the_
                            "init_model": "m.pt", "shield": True}, "recipe.yaml")
     cfg = load_train_config({key: 0.1, "imitation_margin_weight": 1.0}, "recipe.yaml")
     assert cfg.imitation_margin_min_gap_m == 0.1
+
+
+def test_the_holding_primitives_are_the_nine_without_a_forward_step() -> None:
+    holding = holding_primitives(PrimitiveConfig())
+    assert holding.shape == (18,) and int(holding.sum()) == 9
+    assert holding[HOVER] and not holding[FORWARD]
+    assert all(holding[i] == (d[0] == 0) for i, d in enumerate(DEFAULT_DIRECTIONS))
+
+
+def test_the_margin_against_some_primitives_leaves_the_others_free() -> None:
+    q = torch.tensor([[2.0, 2.5, 1.5], [2.0, 0.0, 3.0]])
+    expert = torch.tensor([0, 0])
+    against = torch.tensor([False, False, True])
+    # row 0: the free primitive 1 leads the expert's and costs nothing; primitive 2 is 0.5 short of
+    # the margin. Row 1: primitive 2 leads the expert's by 1, plus the margin.
+    assert float(margin_loss(q[:1], expert[:1], 1.0, against=against)) == pytest.approx(0.5)
+    assert float(margin_loss(q[1:], expert[1:], 1.0, against=against)) == pytest.approx(2.0)
+    assert float(margin_loss(q[:1], expert[:1], 1.0)) == pytest.approx(1.5)  # every other: primitive 1
+
+
+def test_the_holding_margin_acts_only_where_the_teacher_goes_forward(side_rule) -> None:
+    """Targets whose first choice is hovering: the margin against the holding primitives has no
+    row to act in, so the fit is the soft targets' fit alone, weight for weight; with the first
+    choice forward it changes the fit and puts forward further ahead of every holding primitive."""
+    rng = np.random.default_rng(0)
+    n = 64
+    depth, rel, _ = side_rule(rng, n)
+    against = holding_primitives(PrimitiveConfig())
+    weights, lead = {}, {}
+    for first in (HOVER, FORWARD):
+        costs = np.full((n, 18), 2.0)
+        costs[:, first] = 0.0
+        data = Aggregate(n, (1, 32, 32), (1, 3), 18)
+        data.add(depth, rel, soft_targets(costs, 1.0), 0)
+        for name, margin_weight, margin_against in (("none", 0.0, None), ("holding", 1.0, against)):
+            torch.manual_seed(0)
+            agent = DQNAgent(NetworkConfig())
+            opt = torch.optim.Adam(agent.q.parameters(), lr=1e-3)
+            fit(agent, data, 25.0, 32, np.random.default_rng(0), opt, "cross_entropy",
+                margin_weight=margin_weight, margin=1.0, margin_against=margin_against)
+            weights[first, name] = torch.cat([p.detach().flatten() for p in agent.q.parameters()])
+            with torch.no_grad():
+                q = agent.q(agent._t(depth.astype(np.float32)), agent._t(rel)).numpy()
+            lead[first, name] = float(np.median(q[:, FORWARD] - q[:, against].max(axis=1)))
+    assert torch.equal(weights[HOVER, "holding"], weights[HOVER, "none"])
+    assert not torch.allclose(weights[FORWARD, "holding"], weights[FORWARD, "none"])
+    assert lead[FORWARD, "holding"] > lead[FORWARD, "none"] + 0.15, lead
+
+
+def test_the_margin_against_nothing_is_refused(side_rule) -> None:
+    depth, rel, _ = side_rule(np.random.default_rng(0), 8)
+    data = Aggregate(8, (1, 32, 32), (1, 3), 18)
+    data.add(depth, rel, np.full((8, 18), 1 / 18, np.float32), 0)
+    agent = DQNAgent(NetworkConfig())
+    opt = torch.optim.Adam(agent.q.parameters(), lr=1e-3)
+    for bad in (np.zeros(18, bool), np.ones(17, bool)):
+        with pytest.raises(ValueError, match="margin_against"):
+            fit(agent, data, 1.0, 8, np.random.default_rng(0), opt, margin_weight=1.0, margin_against=bad)
+
+
+def test_dagger_holds_the_margin_against_the_holding_primitives_when_told(monkeypatch) -> None:
+    import sim_harness.rl.imitation as imitation
+
+    seen: list[object] = []
+    real = imitation.fit
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["margin_against"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, "fit", spy)
+    for holding in (False, True):
+        settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
+                                  batch_size=8, buffer=200, seed=0, margin_weight=1.0,
+                                  margin_against_holding=holding)
+        dagger(DQNAgent(NetworkConfig()), [DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher())],
+               settings, n_envs=2)
+    assert seen[0] is None
+    assert np.array_equal(seen[1], holding_primitives(PrimitiveConfig()))
+
+
+def test_imitation_margin_against_is_checked_and_needs_the_margin() -> None:
+    key = "imitation_margin_against"
+    with pytest.raises(ConfigError, match=rf"recipe\.yaml.*{key}"):
+        load_train_config({key: "forward"}, "recipe.yaml")
+    with pytest.raises(ConfigError, match=rf"recipe\.yaml.*'{key}'.*imitation_margin_weight > 0"):
+        load_train_config({key: "holding"}, "recipe.yaml")
+    cfg = load_train_config({key: "holding", "imitation_margin_weight": 1.0}, "recipe.yaml")
+    assert cfg.imitation_margin_against == "holding"

@@ -178,6 +178,11 @@ class TrainConfig:
     teacher's first choice costs at least this much less than its second (metres of its cost,
     read from the soft targets as T·ln(p1 / p2)): where it is decisive, leaving near-ties to the
     soft targets. 0: in every state. Range: [0, 10]."""
+    imitation_margin_against: str = "every"
+    """What the large-margin loss (``imitation_margin_weight``) asks the label's first choice to
+    lead: "every" other primitive (DQfD), or "holding": the primitives that do not move forward
+    alone, and only in the states where the first choice moves forward, so the student does not
+    hold back where its teacher goes on while the soft targets alone order the forward ones."""
     imitation_veto_weight: Annotated[float, pydantic.Field(ge=0, le=100)] = 0.0
     """Weight of a hinge on the depth safety filter's verdicts in the imitation fits: the best
     primitive the filter allowed in a labelled state should lead every one it vetoed by
@@ -335,6 +340,11 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
             f"{source}: key 'imitation_teacher': bad value {cfg.imitation_teacher!r}: "
             "teachers are privileged, filter"
         )
+    if cfg.imitation_margin_against not in ("every", "holding"):
+        raise ConfigError(
+            f"{source}: key 'imitation_margin_against': bad value {cfg.imitation_margin_against!r}: "
+            "expected 'every' or 'holding'"
+        )
     if cfg.dagger_world_sampling not in ("uniform", "failures"):
         raise ConfigError(
             f"{source}: key 'dagger_world_sampling': bad value {cfg.dagger_world_sampling!r}: "
@@ -399,6 +409,12 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
             f"{source}: key 'imitation_margin_min_gap_m': bad value {cfg.imitation_margin_min_gap_m!r}: "
             "it limits the large-margin loss to the privileged teacher's decisive states: set "
             "imitation_margin_weight > 0 and imitation_teacher: privileged"
+        )
+    if cfg.imitation_margin_against != "every" and not cfg.imitation_margin_weight > 0:
+        raise ConfigError(
+            f"{source}: key 'imitation_margin_against': bad value {cfg.imitation_margin_against!r}: "
+            "it says what the large-margin loss holds the first choice against: set "
+            "imitation_margin_weight > 0"
         )
     if cfg.lab_dagger_noise is not None and cfg.lab_layouts == 0:
         raise ConfigError(

@@ -41,13 +41,15 @@ import torch
 import torch.nn.functional as F
 from numpy.typing import NDArray
 
+from quadnav_onboard.config import PrimitiveConfig
 from sim_harness.env import EnvConfig, VecQuadNavEnv
 from sim_harness.rl.agent import DQNAgent, random_allowed
 from sim_harness.world import World
 
 __all__ = [
     "Aggregate", "DaggerSettings", "DaggerTask", "Labeller", "Labels", "WorldCurriculum", "collect", "dagger",
-    "decisive_rows", "first_choice_agreement", "fit", "lr_at", "margin_loss", "veto_loss",
+    "decisive_rows", "first_choice_agreement", "fit", "holding_primitives", "lr_at", "margin_loss",
+    "veto_loss",
 ]
 
 log = structlog.get_logger(__name__)
@@ -73,6 +75,9 @@ class DaggerSettings:
     margin_min_gap_m: float = 0.0
     """The large-margin loss only where the teacher's first choice costs at least this much less
     than its second (metres of its cost); 0: in every state."""
+    margin_against_holding: bool = False
+    """The large-margin loss against the primitives that do not move forward alone
+    (:func:`holding_primitives`), in the states where the teacher's first choice moves forward."""
     lr_end: float | None = None
     veto_weight: float = 0.0
     noise: float = 0.0
@@ -237,12 +242,16 @@ def collect(
 
 
 def margin_loss(q: torch.Tensor, expert: torch.Tensor, margin: float,
-                rows: torch.Tensor | None = None) -> torch.Tensor:
+                rows: torch.Tensor | None = None, against: torch.Tensor | None = None) -> torch.Tensor:
     """The large-margin classification loss of DQfD (Hester et al. 2018), batch mean:
     max_a [Q(s, a) + ``margin`` if a is not the expert's action] - Q(s, a_E). Zero where the
     expert's action ``expert`` (N,) leads every other by at least ``margin``, and in the rows
-    outside ``rows`` (N,) bool, when given (the mean is still over all N)."""
+    outside ``rows`` (N,) bool, when given (the mean is still over all N). With ``against`` (A,)
+    bool, the max runs over the expert's action and those primitives alone: the expert's action
+    should lead them, and the others are left free."""
     penalty = torch.full_like(q, float(margin))
+    if against is not None:
+        penalty = penalty.masked_fill(~against.to(device=q.device, dtype=torch.bool)[None, :], float("-inf"))
     penalty.scatter_(1, expert[:, None], 0.0)
     per_row = (q + penalty).max(dim=1).values - q.gather(1, expert[:, None]).squeeze(1)
     if rows is not None:
@@ -257,6 +266,12 @@ def decisive_rows(target: torch.Tensor, min_log_ratio: float) -> torch.Tensor:
     top2 = target.topk(2, dim=1).values
     tiny = torch.finfo(target.dtype).tiny
     return torch.log(top2[:, 0].clamp_min(tiny)) - torch.log(top2[:, 1].clamp_min(tiny)) >= min_log_ratio
+
+
+def holding_primitives(primitives: PrimitiveConfig) -> NDArray[np.bool_]:
+    """(A,) bool: the primitives that do not move forward (no forward component in the heading
+    frame), the ones a vehicle holds back with."""
+    return ~(np.asarray(primitives.directions, dtype=float)[:, 0] > 0)
 
 
 def veto_loss(q: torch.Tensor, allowed: torch.Tensor, margin: float) -> torch.Tensor:
@@ -276,14 +291,16 @@ def veto_loss(q: torch.Tensor, allowed: torch.Tensor, margin: float) -> torch.Te
 def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: np.random.Generator,
         optimizer: torch.optim.Optimizer, loss_kind: str = "cross_entropy", updates: int = 0,
         margin_weight: float = 0.0, margin: float = 1.0, veto_weight: float = 0.0,
-        margin_min_log_ratio: float = 0.0) -> tuple[float, float]:
+        margin_min_log_ratio: float = 0.0, margin_against: NDArray[np.bool_] | None = None
+        ) -> tuple[float, float]:
     """``epochs`` passes (fractions allowed), or ``updates`` minibatches when > 0, of cross-entropy
     between softmax(Q) and the targets (``loss_kind`` "cross_entropy"), or of the Huber loss
     between Q and the targets ("huber"), plus ``margin_weight`` times :func:`margin_loss` towards
     the targets' arg-max (when ``margin_min_log_ratio`` > 0, in the :func:`decisive_rows` alone;
-    cross-entropy only) and ``veto_weight`` times :func:`veto_loss` on the filter's verdicts
-    kept with them; returns the mean loss and the share of the last tenth's samples whose
-    arg-max Q is the teacher's first choice. The target network is set to the result."""
+    cross-entropy only; with ``margin_against`` (A,) bool, against those primitives alone and only
+    in the rows whose arg-max is not one of them) and ``veto_weight`` times :func:`veto_loss` on
+    the filter's verdicts kept with them; returns the mean loss and the share of the last tenth's
+    samples whose arg-max Q is the teacher's first choice. The target network is set to the result."""
     if loss_kind not in ("cross_entropy", "huber"):
         raise ValueError(f"loss_kind must be 'cross_entropy' or 'huber', got {loss_kind!r}")
     if not (margin_weight >= 0 and veto_weight >= 0 and margin > 0 and margin_min_log_ratio >= 0):
@@ -293,6 +310,12 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
     if margin_min_log_ratio > 0 and loss_kind != "cross_entropy":
         raise ValueError("margin_min_log_ratio reads the targets as probabilities: it needs the "
                          f"cross-entropy fit, got {loss_kind!r}")
+    against = None
+    if margin_against is not None:
+        against = agent._t(np.asarray(margin_against, dtype=bool))
+        if against.shape != (data.target.shape[1],) or not bool(against.any()):
+            raise ValueError(f"margin_against must be {data.target.shape[1]} bools, some true, "
+                             f"got shape {tuple(against.shape)}")
     n_batches = updates if updates > 0 else max(1, round(epochs * len(data) / batch_size))
     losses: list[float] = []
     agree: list[float] = []
@@ -308,8 +331,12 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
         else:
             loss = -(target * F.log_softmax(q, dim=1)).sum(dim=1).mean()
         if margin_weight > 0:
+            expert = target.argmax(dim=1)
             rows = decisive_rows(target, margin_min_log_ratio) if margin_min_log_ratio > 0 else None
-            loss = loss + margin_weight * margin_loss(q, target.argmax(dim=1), margin, rows)
+            if against is not None:
+                onward = ~against[expert]
+                rows = onward if rows is None else rows & onward
+            loss = loss + margin_weight * margin_loss(q, expert, margin, rows, against)
         if veto_weight > 0:
             allowed = torch.as_tensor(data.allowed[idx], device=q.device)
             loss = loss + veto_weight * veto_loss(q, allowed, margin)
@@ -385,6 +412,7 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         raise ValueError(f"dagger: margin_min_gap_m {s.margin_min_gap_m!r} reads the teacher's soft "
                          f"targets, but its labels fit by {loss_kind!r}")
     env0 = tasks[0].config
+    against = holding_primitives(env0.primitives) if s.margin_against_holding else None
     rng = np.random.default_rng(s.seed + 7)
     n_actions = env0.primitives.build().n_actions
     data = Aggregate(s.buffer, (env0.depth_history, 32, 32), (env0.position_history, 3), n_actions)
@@ -426,7 +454,8 @@ def dagger(agent: DQNAgent, tasks: Sequence[DaggerTask], settings: DaggerSetting
         agreement_new = first_choice_agreement(agent, data, new_rows)
         loss, agreement = fit(agent, data, s.epochs, s.batch_size, rng, optimizer, loss_kind, s.updates,
                               s.margin_weight, s.margin, s.veto_weight,
-                              margin_min_log_ratio=s.margin_min_gap_m / s.temperature_m)
+                              margin_min_log_ratio=s.margin_min_gap_m / s.temperature_m,
+                              margin_against=against)
         records[-1]["loss"] = round(loss, 6)
         records[-1]["agreement"] = round(agreement, 4)
         records[-1]["agreement_new"] = None if agreement_new is None else round(agreement_new, 4)

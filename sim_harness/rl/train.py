@@ -277,6 +277,7 @@ def imitate(agent: DQNAgent, cfg: TrainConfig, env_cfg: EnvConfig, worlds: Seque
         filtered_share=cfg.dagger_filtered_share, updates=cfg.imitation_updates,
         margin_weight=cfg.imitation_margin_weight, margin=cfg.imitation_margin,
         margin_min_gap_m=cfg.imitation_margin_min_gap_m,
+        margin_against_holding=cfg.imitation_margin_against == "holding",
         lr_end=cfg.imitation_lr_end, veto_weight=cfg.imitation_veto_weight, noise=cfg.dagger_noise,
         curriculum_floor=cfg.dagger_world_floor if cfg.dagger_world_sampling == "failures" else None,
     )
