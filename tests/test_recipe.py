@@ -310,14 +310,13 @@ def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_wi
     assert {key: getattr(got, key) for key in expect} == expect
 
 
-def test_shipped_recipe_file_is_the_failure_sampling_recipe_s_seed_4() -> None:
+def test_shipped_recipe_file_is_the_holding_margin_recipe_s_seed_0() -> None:
     """recipes/shipped.yaml (the bundled model's keys) is
-    recipes/privileged-lab-hinge3-round2-f25-failures.yaml at seed 4, so the recipe the docs call the
-    bundled model's is the one it was trained with."""
+    recipes/...-noise-paper-margin1-holding.yaml at seed 0, so the recipe the docs call the bundled
+    model's is the one it was trained with."""
     shipped = cmd_train.config_for(_parse(["--recipe", str(SHIPPED)]))
-    assert shipped == cmd_train.config_for(
-        _parse(["--recipe", str(PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES), "--seed", "4"])
-    )
+    holding = cmd_train.config_for(_parse(["--recipe", str(NOISE_PAPER_MARGIN1_HOLDING), "--seed", "0"]))
+    assert shipped == holding
 
 
 def test_flags_override_the_recipe_file_s_keys() -> None:
