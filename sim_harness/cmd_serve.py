@@ -111,7 +111,12 @@ def run(args: argparse.Namespace) -> int:
         run_dir=run_dir,
     )
     stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    # The handler runs in the main thread, which may hold the event's lock inside stop.wait();
+    # setting it there could deadlock, so a short thread sets it once the lock is free.
+    previous = {
+        s: signal.signal(s, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
+        for s in (signal.SIGINT, signal.SIGTERM)
+    }
     print(f"quadnav-sim serve: the sim's vehicle side in world '{world.name}' ({world_path})")
     print(f"  vehicle (emulated PX4): udpin://0.0.0.0:{api_port}   (MAVSDK; vehicle.url)", flush=True)
     try:

@@ -59,7 +59,9 @@ class _Exit:
         self.event = threading.Event()
         self._parent = os.getppid()
         for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: self.event.set())
+            # Not self.event.set() in the handler: the main thread may hold the event's lock inside
+            # wait(), and the set would deadlock; a short thread sets it once the lock is free.
+            signal.signal(sig, lambda *_: threading.Thread(target=self.event.set, daemon=True).start())
 
     def due(self) -> bool:
         if os.getppid() != self._parent:
