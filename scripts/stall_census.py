@@ -64,9 +64,10 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
     With ``teacher`` (a :class:`~sim_harness.rl.teacher.Teacher`), also count the held-back
     decisions where it would have flown a forward primitive."""
     from sim_harness.rl.evaluate import evaluate
+    from sim_harness.rl.imitation import holding_primitives
     from sim_harness.route import true_geometry_verdict
 
-    forward = np.asarray(env_cfg.primitives.directions)[:, 0] > 0
+    forward = ~holding_primitives(env_cfg.primitives)
     chosen: list[np.ndarray] = []  # the classes of the batch the policy just chose for
     decisions: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []  # world, trials, class, open
     taught: list[tuple[int, np.ndarray]] = []  # world, the held-back trials the teacher flies forward in

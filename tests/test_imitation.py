@@ -55,6 +55,22 @@ class _Hoverer(DQNAgent):
         return np.full(depth.shape[0], HOVER, dtype=np.int64)
 
 
+def _spy(monkeypatch, name: str, key: str) -> list[object]:
+    """Wrap ``sim_harness.rl.imitation.<name>`` so each call records its keyword ``key`` (the
+    real function still runs); returns the list the values are appended to."""
+    import sim_harness.rl.imitation as imitation
+
+    seen: list[object] = []
+    real = getattr(imitation, name)
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs[key])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, name, spy)
+    return seen
+
+
 def _env(n: int = 2, max_steps: int = 6) -> VecQuadNavEnv:
     env = VecQuadNavEnv([_world()], n, seed=0, config=EnvConfig(max_steps=max_steps))
     env.reset()
@@ -276,16 +292,7 @@ def test_dagger_noise_is_range_checked_in_the_config() -> None:
 
 
 def test_a_tasks_own_noise_overrides_the_settings_noise(monkeypatch) -> None:
-    import sim_harness.rl.imitation as imitation
-
-    seen: list[float] = []
-    real = imitation.collect
-
-    def spy(*args, **kwargs):
-        seen.append(kwargs["noise"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(imitation, "collect", spy)
+    seen = _spy(monkeypatch, "collect", "noise")
     settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
                               batch_size=8, buffer=200, seed=0, noise=0.3)
     tasks = [
@@ -364,16 +371,7 @@ def test_the_gated_margin_needs_the_cross_entropy_fit_and_a_non_negative_ratio(s
 
 
 def test_dagger_passes_the_margins_least_gap_to_the_fit_as_a_log_ratio(monkeypatch) -> None:
-    import sim_harness.rl.imitation as imitation
-
-    seen: list[float] = []
-    real = imitation.fit
-
-    def spy(*args, **kwargs):
-        seen.append(kwargs["margin_min_log_ratio"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(imitation, "fit", spy)
+    seen = _spy(monkeypatch, "fit", "margin_min_log_ratio")
     settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
                               batch_size=8, buffer=200, seed=0, margin_weight=1.0, margin_min_gap_m=0.1)
     dagger(DQNAgent(NetworkConfig()), [DaggerTask(EnvConfig(max_steps=4), [_world()], Teacher())],
@@ -469,16 +467,7 @@ def test_the_margin_against_nothing_is_refused(side_rule) -> None:
 
 
 def test_dagger_holds_the_margin_against_the_holding_primitives_when_told(monkeypatch) -> None:
-    import sim_harness.rl.imitation as imitation
-
-    seen: list[object] = []
-    real = imitation.fit
-
-    def spy(*args, **kwargs):
-        seen.append(kwargs["margin_against"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(imitation, "fit", spy)
+    seen = _spy(monkeypatch, "fit", "margin_against")
     for holding in (False, True):
         settings = DaggerSettings(iterations=1, episodes=2, beta=1.0, epochs=1.0, lr=1e-3, temperature_m=0.25,
                                   batch_size=8, buffer=200, seed=0, margin_weight=1.0,
