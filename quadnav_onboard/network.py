@@ -8,7 +8,9 @@ last layer. All hidden layers use ReLU. With the defaults this has 73,946 parame
 Options (all off by default = the paper): ``depth_history`` stacks the last k depth frames as
 input channels; ``position_history`` feeds the last k relative positions to each sub-lane;
 ``dueling`` splits the head's last layer into value and advantage streams; ``width`` multiplies
-every hidden layer's size (its channels and units), the inputs and outputs staying as they are.
+every hidden layer's size (its channels and units), the inputs and outputs staying as they are;
+``scale_input`` feeds the primitive scale the network flies at (metres per axis of one primitive)
+to a fourth position sub-lane (1 -> 8), so one network can answer differently at 0.5 m and 1 m.
 """
 
 from __future__ import annotations
@@ -42,27 +44,36 @@ class NetworkConfig:
     """Dueling head (value + advantage) instead of the paper's plain head."""
     width: int = 1
     """Every hidden layer's size times this (1 = the paper). Range: 1-4."""
+    scale_input: bool = False
+    """The network also reads the primitive scale it flies at (m), in its own position sub-lane;
+    every caller then passes it (the paper: no)."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int) and 1 <= self.width <= 4):
             raise ValueError(f"network width must be an integer in 1-4, got {self.width!r}")
+        if not isinstance(self.scale_input, bool):
+            raise ValueError(f"network scale_input must be true or false, got {self.scale_input!r}")
 
     def to_dict(self) -> dict[str, object]:
-        """The config as a checkpoint stores it; ``width`` only where it is not the paper's, so a
-        checkpoint of the paper's widths reads the same in builds that predate the key."""
+        """The config as a checkpoint stores it; ``width`` and ``scale_input`` only where they are
+        not the paper's, so a checkpoint of the paper's network reads the same in builds that
+        predate the keys (and one that reads the scale is refused by them, not misread)."""
         d = asdict(self)
         if self.width == 1:
             del d["width"]
+        if not self.scale_input:
+            del d["scale_input"]
         return d
 
 
 class DQN(nn.Module):
     """Q(s, ·) for s = (depth, relative position).
 
-    ``forward(depth, rel_pos)``: depth float32 (B, depth_history, 32, 32) in [0, 1];
+    ``forward(depth, rel_pos, scale_m)``: depth float32 (B, depth_history, 32, 32) in [0, 1];
     rel_pos float32 (B, position_history, 3), metres, heading frame (x fwd, y left, z up), oldest
-    first. Returns Q-values (B, n_actions). ``forward`` is exactly
-    ``q_from_features(depth_features(depth), rel_pos)``.
+    first; ``scale_m`` float32 (B,), the primitive scale each row flies at (m): required when
+    ``config.scale_input``, ignored otherwise. Returns Q-values (B, n_actions). ``forward`` is
+    exactly ``q_from_features(depth_features(depth), rel_pos, scale_m)``.
     """
 
     def __init__(self, config: NetworkConfig = NetworkConfig()) -> None:
@@ -85,7 +96,9 @@ class DQN(nn.Module):
         self.pos_x = nn.Sequential(nn.Linear(k_p, 16 * w), nn.ReLU())
         self.pos_y = nn.Sequential(nn.Linear(k_p, 8 * w), nn.ReLU())
         self.pos_z = nn.Sequential(nn.Linear(k_p, 8 * w), nn.ReLU())
-        self.pos_merge = nn.Sequential(nn.Linear(32 * w, 16 * w), nn.ReLU())
+        if config.scale_input:
+            self.pos_scale = nn.Sequential(nn.Linear(1, 8 * w), nn.ReLU())
+        self.pos_merge = nn.Sequential(nn.Linear((40 if config.scale_input else 32) * w, 16 * w), nn.ReLU())
         self.trunk = nn.Sequential(nn.Linear(80 * w, 64 * w), nn.ReLU(), nn.Linear(64 * w, 32 * w), nn.ReLU())
         if config.dueling:
             self.value = nn.Linear(32 * w, 1)
@@ -93,8 +106,9 @@ class DQN(nn.Module):
         else:
             self.out = nn.Linear(32 * w, config.n_actions)
 
-    def forward(self, depth: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
-        return self.q_from_features(self.depth_features(depth), rel_pos)
+    def forward(self, depth: torch.Tensor, rel_pos: torch.Tensor,
+                scale_m: torch.Tensor | None = None) -> torch.Tensor:
+        return self.q_from_features(self.depth_features(depth), rel_pos, scale_m)
 
     def depth_features(self, depth: torch.Tensor) -> torch.Tensor:
         """The depth lane alone: depth (B, depth_history, 32, 32) -> features (B, 64 * width).
@@ -104,13 +118,17 @@ class DQN(nn.Module):
         """
         return self.depth_lane(depth)
 
-    def q_from_features(self, features: torch.Tensor, rel_pos: torch.Tensor) -> torch.Tensor:
-        """The position lane, trunk and head: features (B, 64 * width), rel_pos (B, position_history, 3)
-        -> Q-values (B, n_actions)."""
-        p = torch.cat(
-            [self.pos_x(rel_pos[..., 0]), self.pos_y(rel_pos[..., 1]), self.pos_z(rel_pos[..., 2])],
-            dim=-1,
-        )
+    def q_from_features(self, features: torch.Tensor, rel_pos: torch.Tensor,
+                        scale_m: torch.Tensor | None = None) -> torch.Tensor:
+        """The position lane, trunk and head: features (B, 64 * width), rel_pos (B, position_history, 3),
+        scale_m (B,) when the network reads the scale -> Q-values (B, n_actions)."""
+        lanes = [self.pos_x(rel_pos[..., 0]), self.pos_y(rel_pos[..., 1]), self.pos_z(rel_pos[..., 2])]
+        if self.config.scale_input:
+            if scale_m is None:
+                raise ValueError("this network reads the primitive scale it flies at: pass scale_m (B,)")
+            s = torch.as_tensor(scale_m, dtype=rel_pos.dtype, device=rel_pos.device).reshape(-1, 1)
+            lanes.append(self.pos_scale(s.expand(rel_pos.shape[0], 1)))
+        p = torch.cat(lanes, dim=-1)
         h = self.trunk(torch.cat([features, self.pos_merge(p)], dim=-1))
         if self.config.dueling:
             adv = self.advantage(h)

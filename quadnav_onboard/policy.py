@@ -75,18 +75,37 @@ class Policy:
         """The depth preprocessing the model was trained with."""
         return parse_config(PreprocessConfig, self.checkpoint.preprocess, source="checkpoint.preprocess")
 
-    def q_values_batch(self, depth: ArrayLike, rel: ArrayLike) -> NDArray[np.float32]:
-        """Q-values (B, n_actions) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3)."""
+    @property
+    def reads_scale(self) -> bool:
+        """Whether the network reads the primitive scale it flies at: every call then passes
+        ``scale_m``, the scale of the primitives flown (not necessarily the one trained with)."""
+        return self.network.scale_input
+
+    def _scale(self, scale_m: float | None, n: int) -> torch.Tensor | None:
+        if not self.reads_scale:
+            return None
+        if scale_m is None:
+            raise ValueError("this model reads the primitive scale it flies at: pass scale_m")
+        s = float(scale_m)
+        if not (np.isfinite(s) and s > 0):
+            raise ValueError(f"scale_m must be a finite scale > 0 (m), got {scale_m!r}")
+        return torch.full((n,), s, dtype=torch.float32)
+
+    def q_values_batch(
+        self, depth: ArrayLike, rel: ArrayLike, scale_m: float | None = None
+    ) -> NDArray[np.float32]:
+        """Q-values (B, n_actions) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3); ``scale_m``
+        the primitive scale flown, for a model that reads it (:attr:`reads_scale`)."""
         d = torch.as_tensor(np.asarray(depth, dtype=np.float32))
         r = torch.as_tensor(np.asarray(rel, dtype=np.float32))
         with torch.inference_mode():
-            return self.model(d, r).numpy()
+            return self.model(d, r, self._scale(scale_m, d.shape[0])).numpy()
 
     def act(
-        self, depth: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None
+        self, depth: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None, scale_m: float | None = None
     ) -> tuple[int, NDArray[np.float32]]:
         """Greedy action for one observation; returns (action index, Q-values (n_actions,))."""
-        return self.act_from_features(self.depth_features(depth), rel, allowed)
+        return self.act_from_features(self.depth_features(depth), rel, allowed, scale_m)
 
     def depth_features(self, depth: ArrayLike) -> NDArray[np.float32]:
         """The network's depth lane for one depth stack (k_d, 32, 32): features float32 (64 * width,)."""
@@ -97,13 +116,15 @@ class Policy:
             return self.model.depth_features(torch.from_numpy(d[None]))[0].numpy()
 
     def act_from_features(
-        self, features: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None
+        self, features: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None,
+        scale_m: float | None = None,
     ) -> tuple[int, NDArray[np.float32]]:
         """The rest of the network and the arg-max: features (64 * width,) from :meth:`depth_features`,
         rel (k_p, 3); returns (action index, Q-values (n_actions,)).
 
         ``allowed``: bool (n_actions,); the arg-max is over the allowed actions only, or over all
-        of them if none is allowed. The Q-values returned are all of them, unmasked.
+        of them if none is allowed. The Q-values returned are all of them, unmasked. ``scale_m``:
+        the primitive scale flown, for a model that reads it (:attr:`reads_scale`).
         """
         f = np.ascontiguousarray(features, dtype=np.float32)
         r = np.ascontiguousarray(rel, dtype=np.float32)
@@ -112,7 +133,8 @@ class Policy:
         if r.shape != (self.position_history, 3):
             raise ValueError(f"rel must have shape ({self.position_history}, 3), got {r.shape}")
         with torch.inference_mode():
-            q = self.model.q_from_features(torch.from_numpy(f[None]), torch.from_numpy(r[None]))[0].numpy()
+            q = self.model.q_from_features(torch.from_numpy(f[None]), torch.from_numpy(r[None]),
+                                           self._scale(scale_m, 1))[0].numpy()
         if allowed is not None and np.shape(allowed) != (self.n_actions,):
             raise ValueError(f"allowed must have shape ({self.n_actions},), got {np.shape(allowed)}")
         return int(masked_argmax(q, allowed)), q

@@ -62,7 +62,7 @@ def main() -> int:
                             autoreset=False)
         depth, rel = env.reset()
         while not env.done.all():
-            action = masked_argmax(policy.q_values_batch(depth, rel), env.allowed)
+            action = masked_argmax(policy.q_values_batch(depth, rel, env_cfg.primitives.scale_m), env.allowed)
             live = np.flatnonzero(~env.done)
             yaw = world.path.heading_at(env.pos_m[live])
             samples = primitive_samples(

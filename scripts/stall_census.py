@@ -74,7 +74,7 @@ def census(policy, worlds, trials: int, seed: int, env_cfg, limits=None, depth_n
     world_no = [0]
 
     def act(depth, rel, allowed):
-        q = policy.q_values_batch(depth, rel)
+        q = policy.q_values_batch(depth, rel, env_cfg.primitives.scale_m)
         flown, cls = classify(q, np.asarray(allowed, dtype=bool), forward)
         chosen[:] = [cls]
         return flown

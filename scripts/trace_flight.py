@@ -65,7 +65,7 @@ def main() -> int:
     def trace(world, env, depth, rel, actions) -> None:
         if world is not target or env.done[i]:
             return
-        q = policy.q_values_batch(depth, rel)
+        q = policy.q_values_batch(depth, rel, env.config.primitives.scale_m)
         true = true_geometry_verdict(env, np.array([i]))[1][0]
         seen = env.clearance_m[i]
         top = [(int(a), bool(env.allowed[i, a]), round(float(seen[a]), 2), round(float(true[a]), 2))

@@ -51,7 +51,7 @@ def _world():
 class _Hoverer(DQNAgent):
     """A student that always hovers (its greedy action is known)."""
 
-    def greedy(self, depth, rel, allowed=None):
+    def greedy(self, depth, rel, allowed=None, scale_m=None):
         return np.full(depth.shape[0], HOVER, dtype=np.int64)
 
 

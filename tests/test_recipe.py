@@ -48,6 +48,8 @@ NOISE_PAPER_MARGIN3 = SOFT_RELEASE_E2.with_name(SOFT_RELEASE_E2.stem + "-noise-p
 NOISE_PAPER_MARGIN1_GAP02 = NOISE_PAPER_MARGIN1.with_name(NOISE_PAPER_MARGIN1.stem + "-gap02.yaml")
 NOISE_PAPER_MARGIN3_GAP02 = NOISE_PAPER_MARGIN3.with_name(NOISE_PAPER_MARGIN3.stem + "-gap02.yaml")
 NOISE_PAPER_MARGIN1_HOLDING = NOISE_PAPER_MARGIN1.with_name(NOISE_PAPER_MARGIN1.stem + "-holding.yaml")
+NOISE_PAPER_MARGIN1_HOLDING_SCALE = NOISE_PAPER_MARGIN1_HOLDING.with_name(
+    NOISE_PAPER_MARGIN1_HOLDING.stem + "-scale.yaml")
 NOISE_PAPER_MARGIN03 = SOFT_RELEASE_E2.with_name(SOFT_RELEASE_E2.stem + "-noise-paper-margin03.yaml")
 FAILURES_NOISE_PAPER = PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES.with_name(
     PRIVILEGED_LAB_HINGE3_ROUND2_F25_FAILURES.stem + "-noise-paper.yaml"
@@ -290,8 +292,11 @@ def test_release_recipe_is_the_soft_recipe_with_the_teacher_released_at_0_75_m()
     (NOISE_PAPER_MARGIN1_HOLDING, SOFT_RELEASE_E2_NOISE_PAPER,
      ["--imitation-margin-weight", "1", "--imitation-margin-against", "holding"],
      {"imitation_margin_weight": 1.0, "imitation_margin_against": "holding", "imitation_margin": 1.0}),
+    (NOISE_PAPER_MARGIN1_HOLDING_SCALE, SOFT_RELEASE_E2_NOISE_PAPER,
+     ["--imitation-margin-weight", "1", "--imitation-margin-against", "holding", "--network-scale-input"],
+     {"imitation_margin_against": "holding", "network_scale_input": True}),
 ], ids=["two-pass", "noise", "noise-paper", "failures-noise-paper", "margin1", "margin03", "margin3",
-        "margin1-gap02", "margin3-gap02", "margin1-holding"])
+        "margin1-gap02", "margin3-gap02", "margin1-holding", "margin1-holding-scale"])
 def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_with(
     recipe: Path, base: Path, flag: list[str], expect: dict[str, float]
 ) -> None:
@@ -301,8 +306,8 @@ def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_wi
     failure recipe with both, and ...-noise-paper-margin1.yaml / -margin03.yaml / -margin3.yaml the
     noise-paper recipe with ``--imitation-margin-weight 1`` / ``0.3`` / ``3``, and
     -margin1-gap02.yaml / -margin3-gap02.yaml those with ``--imitation-margin-min-gap-m 0.2``,
-    and -margin1-holding.yaml weight 1 with ``--imitation-margin-against holding``, each its own
-    name."""
+    and -margin1-holding.yaml weight 1 with ``--imitation-margin-against holding``, and
+    -margin1-holding-scale.yaml that with ``--network-scale-input``, each its own name."""
     got = cmd_train.config_for(_parse(["--recipe", str(recipe)]))
     flags = cmd_train.config_for(_parse(["--recipe", str(base), *flag]))
     assert got.name == recipe.stem

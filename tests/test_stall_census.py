@@ -115,7 +115,7 @@ def test_the_teacher_labels_the_held_back_states_and_goes_on_where_the_way_is_op
     hover = DEFAULT_DIRECTIONS.index((0, 0, 0))
 
     class Hoverer:
-        def q_values_batch(self, depth, rel):
+        def q_values_batch(self, depth, rel, scale_m=None):
             q = np.zeros((depth.shape[0], len(DEFAULT_DIRECTIONS)), dtype=np.float32)
             q[:, hover] = 1.0
             return q

@@ -209,7 +209,8 @@ class Decider:
             else:
                 allowed, clearance, self.memory = self._verdict(self.memory, *prepared.shield_view, motion)
         self.history.push(prepared.depth_input, rel_pos_body_m)
-        action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed)
+        action, q = self.policy.act_from_features(prepared.features, self.history.rel_array(), allowed,
+                                                  self.prims.scale_m)
         return Decision(action, q, prepared.depth_input, path, allowed, clearance)
 
     def _verdict(

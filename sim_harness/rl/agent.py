@@ -60,13 +60,22 @@ class DQNAgent:
         """|target - Q(s, a)| of each sample of the last update (prioritised replay's priorities)."""
 
     def greedy(
-        self, depth: NDArray[np.float32], rel: NDArray[np.float32], allowed: NDArray[np.bool_] | None = None
+        self, depth: NDArray[np.float32], rel: NDArray[np.float32], allowed: NDArray[np.bool_] | None = None,
+        scale_m: float | None = None,
     ) -> NDArray[np.int64]:
         """Arg-max actions (B,) for a batch: depth (B, k_d, 32, 32), rel (B, k_p, 3); over the
-        ``allowed`` actions (B, n_actions) only, when given (the shield's verdict)."""
+        ``allowed`` actions (B, n_actions) only, when given (the shield's verdict). ``scale_m``:
+        the primitive scale the batch flies at, for a network that reads it (ignored otherwise)."""
         with torch.inference_mode():
-            q = self.q(self._t(depth), self._t(rel)).cpu().numpy()
+            q = self.q(self._t(depth), self._t(rel), self.scale_rows(scale_m, depth.shape[0])).cpu().numpy()
         return masked_argmax(q, allowed)
+
+    def scale_rows(self, scale_m: float | NDArray | None, n: int) -> torch.Tensor | None:
+        """``scale_m`` as the network's scale input (n,), or None for a network that does not read
+        it (or when none is given: the network then says what it is missing)."""
+        if scale_m is None or not self.q.config.scale_input:
+            return None
+        return self._t(np.broadcast_to(np.asarray(scale_m, dtype=np.float32), (n,)).copy())
 
     def _t(self, a: NDArray) -> torch.Tensor:
         return torch.as_tensor(a).to(self.device, non_blocking=True)
@@ -78,11 +87,12 @@ class DQNAgent:
         epsilon: NDArray | float,
         rng: np.random.Generator,
         allowed: NDArray[np.bool_] | None = None,
+        scale_m: float | None = None,
     ) -> NDArray[np.int64]:
         """ε-greedy actions (B,); ``epsilon`` scalar or per row; randomness from ``rng``. With
         ``allowed`` (B, n_actions) both the greedy and the random choice keep to allowed actions."""
         n = depth.shape[0]
-        actions = self.greedy(depth, rel, allowed)
+        actions = self.greedy(depth, rel, allowed, scale_m)
         explore = rng.random(n) < np.broadcast_to(np.asarray(epsilon, dtype=np.float64), (n,))
         if allowed is None:
             random_actions = rng.integers(0, self.q.config.n_actions, size=n)

@@ -124,6 +124,11 @@ class TrainConfig:
     """Every hidden layer of the network this many times as wide (1 = the paper's layer sizes; 2
     has about four times the parameters). An ``init_model`` of the paper's width is widened to
     it, computing what it did. Range: [1, 4]."""
+    network_scale_input: bool = False
+    """The network also reads the primitive scale it flies at (a fourth position sub-lane), so it
+    can answer differently at 0.5 m and 1 m; every flight then tells it the scale flown. An
+    ``init_model`` without the lane gets one it reads at zero weight, computing what it did.
+    Imitation only (``imitation_only: true`` with DAgger): the RL updates do not carry the scale."""
     prioritized_replay: bool = False
     """Prioritised replay (beyond the paper): transitions sampled in proportion to |TD error|^α,
     the loss weighted by importance sampling (sim_harness.rl.replay.PrioritizedReplayBuffer)."""
@@ -415,6 +420,12 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
             f"{source}: key 'imitation_margin_against': bad value {cfg.imitation_margin_against!r}: "
             "it says what the large-margin loss holds the first choice against: set "
             "imitation_margin_weight > 0"
+        )
+    if cfg.network_scale_input and not (cfg.imitation_only and cfg.dagger_iterations > 0):
+        raise ConfigError(
+            f"{source}: key 'network_scale_input': bad value {cfg.network_scale_input!r}: the scale "
+            "is learned by imitation alone (the RL updates do not carry it): set imitation_only: "
+            "true and dagger_iterations > 0"
         )
     if cfg.lab_dagger_noise is not None and cfg.lab_layouts == 0:
         raise ConfigError(

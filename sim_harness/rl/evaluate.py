@@ -40,6 +40,7 @@ __all__ = [
     "FlightLimits",
     "GreedyFn",
     "NoisyDepthEnv",
+    "PolicyGreedy",
     "StepHook",
     "env_config_for_policy",
     "eval_starts",
@@ -239,8 +240,25 @@ class NoisyDepthEnv(VecQuadNavEnv):
         return depth_inputs_mm(noisy_mm, self.config.preprocess, nearest=nearest)
 
 
-def policy_greedy_fn(policy: Policy) -> GreedyFn:
-    return lambda depth, rel, allowed: masked_argmax(policy.q_values_batch(depth, rel), allowed)
+class PolicyGreedy:
+    """A :class:`Policy` as a batched greedy policy (a :data:`GreedyFn`). A model that reads the
+    primitive scale it flies at (:attr:`Policy.reads_scale`) needs it: :func:`evaluate` hands each
+    world's to :meth:`at_scale`, from the env config it flies."""
+
+    def __init__(self, policy: Policy, scale_m: float | None = None) -> None:
+        self.policy = policy
+        self.scale_m = scale_m
+
+    def at_scale(self, scale_m: float) -> PolicyGreedy:
+        return PolicyGreedy(self.policy, scale_m)
+
+    def __call__(self, depth: NDArray[np.float32], rel: NDArray[np.float32],
+                 allowed: NDArray[np.bool_]) -> NDArray[np.int64]:
+        return masked_argmax(self.policy.q_values_batch(depth, rel, self.scale_m), allowed)
+
+
+def policy_greedy_fn(policy: Policy) -> PolicyGreedy:
+    return PolicyGreedy(policy)
 
 
 @dataclasses.dataclass
@@ -323,6 +341,7 @@ def evaluate(
     for w_i, world in enumerate(worlds):
         env = _world_env(world, w_i, trials, seed, env_config, limits, depth_noise, known_rooms)
         cfg = env.config
+        step_act = act.at_scale(cfg.primitives.scale_m) if isinstance(act, PolicyGreedy) else act
         depth, rel = env.reset()
         starts = np.round(env.pos_m.astype(np.float64), 3)
         if on_world_start is not None:
@@ -331,9 +350,9 @@ def evaluate(
         progress = np.zeros(trials)
         while not env.done.all():
             running = ~env.done
-            actions = act(depth, rel, env.allowed)
+            actions = step_act(depth, rel, env.allowed)
             if overrules is not None and cfg.shield.enabled:
-                first = act(depth, rel, np.ones_like(env.allowed))
+                first = step_act(depth, rel, np.ones_like(env.allowed))
                 overrules.decisions += int(running.sum())
                 overrules.overruled += int((running & (first != actions)).sum())
             if on_step is not None:

@@ -106,6 +106,8 @@ class Aggregate:
         """The states whose labels leave the filter's verdicts aside (``TeacherConfig.release_m``)."""
         self.iteration = np.zeros(capacity, dtype=np.int32)
         """The DAgger iteration each row was collected in."""
+        self.scale_m = np.zeros(capacity, dtype=np.float32)
+        """The primitive scale (m) each row was flown at (a network that reads the scale fits it)."""
         self.size = 0
         self._next = 0
         self.added = 0
@@ -117,7 +119,8 @@ class Aggregate:
         return self.size
 
     def add(self, depth: NDArray, rel: NDArray, target: NDArray, iteration: int,
-            allowed: NDArray[np.bool_] | None = None, released: NDArray[np.bool_] | None = None) -> None:
+            allowed: NDArray[np.bool_] | None = None, released: NDArray[np.bool_] | None = None,
+            scale_m: float = 1.0) -> None:
         n = depth.shape[0]
         if not (rel.shape[0] == n and target.shape[0] == n):
             raise ValueError("depth, rel and target need the same number of rows")
@@ -130,6 +133,7 @@ class Aggregate:
         self.allowed[idx] = True if allowed is None else allowed
         self.released[idx] = False if released is None else released
         self.iteration[idx] = iteration
+        self.scale_m[idx] = scale_m
         self._next = int((self._next + n) % self.capacity)
         self.size = min(self.capacity, self.size + n)
         self.added += n
@@ -212,6 +216,7 @@ def collect(
     if not 0.0 <= noise <= 1.0:
         raise ValueError(f"noise must be a probability in [0, 1], got {noise!r}")
     filtered = np.arange(env.n_envs) < round(filtered_share * env.n_envs)
+    scale_m = float(env.config.primitives.scale_m)
     counts: dict[str, int] = {}
     finished = 0
     depth, rel = env.depth, env.rel
@@ -219,13 +224,13 @@ def collect(
         target, actions, released = teacher.label(env, depth, rel, temperature_m)
         # a label that leaves the filter aside carries no verdict: every primitive counts as allowed
         verdicts = np.where(released[:, None], True, env.allowed) if keep_verdicts else None
-        data.add(depth, rel, target, iteration, verdicts, released)
+        data.add(depth, rel, target, iteration, verdicts, released, scale_m)
         # what each env's flight allows: behind the filter its verdicts, alone every primitive
         flyable = np.where(filtered[:, None], env.allowed, True)
         if beta < 1.0:
             own = rng.random(env.n_envs) >= beta
             if own.any():
-                actions[own] = agent.greedy(depth[own], rel[own], flyable[own])
+                actions[own] = agent.greedy(depth[own], rel[own], flyable[own], scale_m)
         if noise > 0.0:
             jolt = rng.random(env.n_envs) < noise
             if jolt.any():
@@ -325,7 +330,7 @@ def fit(agent: DQNAgent, data: Aggregate, epochs: float, batch_size: int, rng: n
         depth = agent._t(data.depth[idx].astype(np.float32))
         rel = agent._t(data.rel[idx])
         target = agent._t(data.target[idx])
-        q = agent.q(depth, rel)
+        q = agent.q(depth, rel, agent.scale_rows(data.scale_m[idx], len(idx)))
         if loss_kind == "huber":
             loss = F.smooth_l1_loss(q, target)
         else:
@@ -363,7 +368,8 @@ def first_choice_agreement(agent: DQNAgent, data: Aggregate, rows: NDArray[np.in
     with torch.no_grad():
         for start in range(0, rows.size, batch):
             idx = rows[start:start + batch]
-            q = agent.q(agent._t(data.depth[idx].astype(np.float32)), agent._t(data.rel[idx]))
+            q = agent.q(agent._t(data.depth[idx].astype(np.float32)), agent._t(data.rel[idx]),
+                        agent.scale_rows(data.scale_m[idx], len(idx)))
             hits += int((q.argmax(dim=1).cpu().numpy() == data.target[idx].argmax(axis=1)).sum())
     return hits / rows.size
 

@@ -145,6 +145,7 @@ def network_config_for(cfg: TrainConfig) -> NetworkConfig:
         position_history=cfg.position_history,
         dueling=cfg.dueling,
         width=cfg.network_width,
+        scale_input=cfg.network_scale_input,
     )
 
 
@@ -181,7 +182,7 @@ def _init_checkpoint(cfg: TrainConfig) -> Checkpoint | None:
         raise ConfigError(
             f"key 'init_model': bad value {cfg.init_model!r}: its network {init.network} is not "
             f"this config's {network_config_for(cfg)} (only the histories may be longer "
-            "here, and the hidden layers wider)"
+            "here, the hidden layers wider, and the scale lane added)"
         )
     return init
 
@@ -194,7 +195,8 @@ def _init_weights(init: Checkpoint, cfg: TrainConfig) -> dict[str, torch.Tensor]
     if init.network != target:
         log.info("init_model widened", depth_history=[init.network.depth_history, target.depth_history],
                  position_history=[init.network.position_history, target.position_history],
-                 width=[init.network.width, target.width])
+                 width=[init.network.width, target.width],
+                 scale_input=[init.network.scale_input, target.scale_input])
     return widen(init.model, target, seed=cfg.seed)
 
 
@@ -218,7 +220,7 @@ def _evaluator(
     eval_cfg = dataclasses.replace(env_cfg, random_start_prob=0.0, reward=RewardParams())
     shield = cfg.shield
     rows = evaluate(
-        lambda d, r, allowed: agent.greedy(d, r, allowed if shield else None),
+        lambda d, r, allowed: agent.greedy(d, r, allowed if shield else None, eval_cfg.primitives.scale_m),
         worlds,
         cfg.eval_trials,
         seed=EVAL_SEED,

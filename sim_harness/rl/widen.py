@@ -10,6 +10,11 @@ use the older frames, the views of obstacles that have left the camera's field o
 trained units, and its new units get a fresh random initialisation of their inputs while every
 trained unit reads them at zero weight, so the wider network too computes exactly what the
 trained one does, and the new units start to learn from the first gradient.
+
+:func:`widen` also adds the scale lane (``NetworkConfig.scale_input``) to a network without one:
+the lane gets a fresh random initialisation and the position merge reads it at zero weight, so
+the network computes what the trained one does at every scale until training teaches it to tell
+the scales apart.
 """
 
 from __future__ import annotations
@@ -26,17 +31,18 @@ _POSITION_LANES = ("pos_x", "pos_y", "pos_z")
 
 
 def can_widen(source: NetworkConfig, target: NetworkConfig) -> bool:
-    """Whether ``target`` is ``source`` with a depth and position history at least as long and
-    hidden layers at least as wide."""
+    """Whether ``target`` is ``source`` with a depth and position history at least as long,
+    hidden layers at least as wide, and perhaps the scale lane added."""
     same_otherwise = dataclasses.replace(
         source, depth_history=target.depth_history, position_history=target.position_history,
-        width=target.width,
+        width=target.width, scale_input=target.scale_input,
     ) == target
     return (
         same_otherwise
         and target.depth_history >= source.depth_history
         and target.position_history >= source.position_history
         and target.width >= source.width
+        and target.scale_input >= source.scale_input
     )
 
 
@@ -46,7 +52,8 @@ def widen_history(model: DQN, target: NetworkConfig) -> dict[str, torch.Tensor]:
     (histories are oldest first), every other tensor is copied. Raises ValueError when
     ``target`` differs from the model's config by more than longer histories."""
     source = model.config
-    if not can_widen(source, target) or target.width != source.width:
+    if not can_widen(source, target) or target.width != source.width \
+            or target.scale_input != source.scale_input:
         raise ValueError(
             f"cannot widen a network of {source} to {target}: only longer depth and position "
             "histories can be added"
@@ -89,17 +96,27 @@ def widen(model: DQN, target: NetworkConfig, seed: int = 0) -> dict[str, torch.T
     paper's width only). The new units' input weights and biases are those of a fresh
     :class:`DQN` of ``target`` initialised under ``torch.manual_seed(seed)`` (the global
     generator is left as it was); the trained units read the new ones at zero weight. Raises
-    ValueError when ``target`` is not such a widening of the model's config."""
+    ValueError when ``target`` is not such a widening of the model's config. The scale lane, when
+    ``target`` adds it, is initialised as a new unit is, and read at zero weight."""
     source = model.config
     if not can_widen(source, target):
         raise ValueError(
             f"cannot widen a network of {source} to {target}: only longer depth and position "
-            "histories and wider hidden layers can be added"
+            "histories, wider hidden layers and the scale lane can be added"
         )
+    add_scale = target.scale_input and not source.scale_input
+    if add_scale and target.width != source.width:
+        raise ValueError(f"cannot widen a network of {source} to {target}: add the scale lane "
+                         "or widen the layers, one at a time")
+    if add_scale:
+        return _add_scale_lane(widen_history(model, dataclasses.replace(target, scale_input=False)),
+                               target, seed)
     if target.width == source.width:
         return widen_history(model, target)
     if source.width != 1:
         raise ValueError(f"cannot widen a network of width {source.width}: only the paper's width 1 widens")
+    if source.scale_input:
+        raise ValueError("cannot widen the layers of a network that reads the scale: widen them first")
     narrow = widen_history(model, dataclasses.replace(target, width=1))
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
@@ -117,3 +134,24 @@ def widen(model: DQN, target: NetworkConfig, seed: int = 0) -> dict[str, torch.T
     if set(state) != set(fresh):
         raise AssertionError(f"widen: tensors not covered: {sorted(set(fresh) - set(state))}")
     return state
+
+
+def _add_scale_lane(state: dict[str, torch.Tensor], target: NetworkConfig,
+                    seed: int) -> dict[str, torch.Tensor]:
+    """``state`` (a network of ``target`` without the scale lane) with the lane of a fresh
+    :class:`DQN` of ``target`` (``torch.manual_seed(seed)``, the global generator left as it was)
+    and the position merge reading it at zero weight (its inputs last, as in
+    :meth:`DQN.q_from_features`)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        fresh = DQN(target).state_dict()
+    out = dict(state)
+    out["pos_scale.0.weight"] = fresh["pos_scale.0.weight"].clone()
+    out["pos_scale.0.bias"] = fresh["pos_scale.0.bias"].clone()
+    merge = state["pos_merge.0.weight"]
+    extra = fresh["pos_merge.0.weight"].shape[1] - merge.shape[1]
+    zeros = torch.zeros((merge.shape[0], extra), dtype=merge.dtype)
+    out["pos_merge.0.weight"] = torch.cat([merge, zeros], dim=1)
+    if set(out) != set(fresh):
+        raise AssertionError(f"widen: tensors not covered: {sorted(set(fresh) ^ set(out))}")
+    return out

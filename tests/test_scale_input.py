@@ -1,0 +1,161 @@
+"""A network that reads the primitive scale it flies at (NetworkConfig.scale_input): its lane, the
+widening that adds it, the policy and the daemon's decision passing the scale flown, DAgger's
+aggregate keeping each row's scale, and a fit that learns an answer that differs by scale."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from quadnav_onboard.checkpoint import load_checkpoint, save_checkpoint
+from quadnav_onboard.daemon.decide import Decider
+from quadnav_onboard.network import DQN, NetworkConfig
+from quadnav_onboard.observation import ObservationHistory
+from quadnav_onboard.policy import Policy
+from quadnav_onboard.preprocess import PreprocessConfig, preprocess_depth_mm
+from quadnav_onboard.primitives import DEFAULT_DIRECTIONS, PrimitiveSet
+from quadnav_onboard.sources.base import DepthFrame
+from sim_harness.env import EnvConfig
+from sim_harness.rl.agent import AgentConfig, DQNAgent
+from sim_harness.rl.config import ConfigError, load_train_config
+from sim_harness.rl.evaluate import PolicyGreedy, evaluate, policy_greedy_fn
+from sim_harness.rl.imitation import Aggregate, fit
+from sim_harness.rl.widen import can_widen, widen
+from sim_harness.world import load_world, resolve_world_arg
+
+SCALED = NetworkConfig(depth_history=2, position_history=3, dueling=True, scale_input=True)
+
+
+def _inputs(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(n, 2, 32, 32, generator=g), torch.randn(n, 3, 3, generator=g)
+
+
+def test_the_scale_lane_changes_the_answer_and_is_required() -> None:
+    torch.manual_seed(1)
+    net = DQN(SCALED)
+    depth, rel = _inputs(4)
+    half = net(depth, rel, torch.full((4,), 0.5))
+    one = net(depth, rel, torch.full((4,), 1.0))
+    assert not torch.allclose(half, one)
+    with pytest.raises(ValueError, match="scale"):
+        net(depth, rel)
+    plain = DQN(dataclasses.replace(SCALED, scale_input=False))
+    torch.testing.assert_close(plain(depth, rel, torch.full((4,), 0.5)), plain(depth, rel))
+
+
+def test_the_checkpoint_names_the_lane_only_when_there_is_one(tmp_path) -> None:
+    assert "scale_input" not in dataclasses.replace(SCALED, scale_input=False).to_dict()
+    assert SCALED.to_dict()["scale_input"] is True
+    loaded = load_checkpoint(save_checkpoint(tmp_path / "s.pt", DQN(SCALED)))
+    assert loaded.network == SCALED
+
+
+def test_widening_adds_the_lane_read_at_zero_weight() -> None:
+    """The widened network computes exactly what the trained one did, at every scale."""
+    torch.manual_seed(2)
+    source = DQN(dataclasses.replace(SCALED, scale_input=False, depth_history=1, position_history=2))
+    assert can_widen(source.config, SCALED) and not can_widen(SCALED, source.config)
+    wide = DQN(SCALED)
+    wide.load_state_dict(widen(source, SCALED, seed=3))
+    depth, rel = _inputs(5)
+    for scale in (0.5, 1.0, 2.0):
+        torch.testing.assert_close(wide(depth, rel, torch.full((5,), scale)),
+                                   source(depth[:, -1:], rel[:, -2:]), rtol=0, atol=0)
+    assert wide.pos_scale[0].weight.abs().sum() > 0  # a fresh lane, so it learns from the first step
+    with pytest.raises(ValueError, match="one at a time"):
+        widen(source, dataclasses.replace(SCALED, width=2), seed=3)
+
+
+@pytest.fixture(scope="module")
+def scaled_policy(tmp_path_factory: pytest.TempPathFactory) -> Policy:
+    torch.manual_seed(4)
+    return Policy.from_path(save_checkpoint(tmp_path_factory.mktemp("m") / "m.pt", DQN(SCALED)))
+
+
+def test_the_policy_needs_the_scale_flown(scaled_policy: Policy) -> None:
+    depth, rel = (t.numpy() for t in _inputs(3))
+    assert scaled_policy.reads_scale
+    with pytest.raises(ValueError, match="pass scale_m"):
+        scaled_policy.q_values_batch(depth, rel)
+    for bad in (0.0, float("nan"), -1.0):
+        with pytest.raises(ValueError, match="finite scale"):
+            scaled_policy.q_values_batch(depth, rel, bad)
+    q = scaled_policy.q_values_batch(depth, rel, 0.5)
+    assert not np.allclose(q, scaled_policy.q_values_batch(depth, rel, 1.0))
+    action, q0 = scaled_policy.act(depth[0], rel[0], scale_m=0.5)
+    np.testing.assert_allclose(q0, q[0], rtol=1e-6, atol=1e-6)
+    assert action == int(np.argmax(q[0]))
+
+
+def test_the_daemon_decides_at_the_scale_of_the_primitives_it_flies(scaled_policy: Policy) -> None:
+    rng = np.random.default_rng(5)
+    frame = DepthFrame(rng.integers(300, 9000, (240, 424), dtype=np.uint16), 0.0, 0)
+    rel = rng.normal(size=3)
+    decider = Decider(scaled_policy, PreprocessConfig(), prims=PrimitiveSet(DEFAULT_DIRECTIONS, 0.5, 1.0))
+    decision = decider.decide(decider.prepare(frame, decider.snapshot()), rel, "prepared")
+    history = ObservationHistory(scaled_policy.depth_history, scaled_policy.position_history)
+    history.push(preprocess_depth_mm(frame.depth_mm), rel)
+    _, q_half = scaled_policy.act(*history.arrays(), scale_m=0.5)
+    _, q_one = scaled_policy.act(*history.arrays(), scale_m=1.0)
+    np.testing.assert_array_equal(decision.q, q_half)
+    assert not np.allclose(decision.q, q_one)
+
+
+def test_evaluate_hands_each_world_its_scale(scaled_policy: Policy) -> None:
+    """The eval's greedy policy is told the env's scale; called without it, the model refuses."""
+    world = load_world(resolve_world_arg("env01"))
+    seen: list[float | None] = []
+
+    class Spy(PolicyGreedy):
+        def at_scale(self, scale_m: float) -> PolicyGreedy:
+            seen.append(scale_m)
+            return super().at_scale(scale_m)
+
+    env_cfg = EnvConfig(max_steps=3, depth_history=2, position_history=3)
+    half = dataclasses.replace(env_cfg, primitives=dataclasses.replace(env_cfg.primitives, scale_m=0.5))
+    evaluate(Spy(scaled_policy), [world], 2, 0, half)
+    evaluate(Spy(scaled_policy), [world], 2, 0, env_cfg)
+    assert seen == [0.5, 1.0]
+    with pytest.raises(ValueError, match="pass scale_m"):
+        policy_greedy_fn(scaled_policy)(*(t.numpy() for t in _inputs(2)), np.ones((2, 18), bool))
+
+
+def _conflicting_labels(n: int) -> Aggregate:
+    """The same observations labelled primitive 4 at 0.5 m and primitive 1 at 1 m (the corridor's
+    sideways step: right at one scale, a crash at the other)."""
+    depth, rel = (t.numpy() for t in _inputs(n, seed=7))
+    data = Aggregate(4 * n, (2, 32, 32), (3, 3), 18)
+    for scale, action in ((0.5, 4), (1.0, 1)):
+        target = np.zeros((n, 18), np.float32)
+        target[:, action] = 1.0
+        data.add(depth, rel, target, 0, scale_m=scale)
+    return data
+
+
+@pytest.mark.parametrize("reads_scale", [True, False])
+def test_a_fit_learns_an_answer_that_differs_by_scale_only_with_the_lane(reads_scale: bool) -> None:
+    torch.manual_seed(8)
+    data = _conflicting_labels(64)
+    np.testing.assert_array_equal(np.unique(data.scale_m[: len(data)]), [0.5, 1.0])
+    agent = DQNAgent(dataclasses.replace(SCALED, scale_input=reads_scale), AgentConfig(learning_rate=1e-3))
+    fit(agent, data, epochs=160.0, batch_size=64, rng=np.random.default_rng(9), optimizer=agent.optimizer)
+    depth, rel = data.depth[:64].astype(np.float32), data.rel[:64]
+    half = agent.greedy(depth, rel, scale_m=0.5)
+    one = agent.greedy(depth, rel, scale_m=1.0)
+    if reads_scale:
+        assert (half == 4).mean() > 0.95 and (one == 1).mean() > 0.95
+    else:  # one answer for both scales: at least one of them is wrong nearly everywhere
+        np.testing.assert_array_equal(half, one)
+        assert min((half == 4).mean(), (one == 1).mean()) < 0.05
+
+
+def test_the_config_keeps_the_lane_to_imitation() -> None:
+    with pytest.raises(ConfigError, match=r"r\.yaml: key 'network_scale_input'"):
+        load_train_config({"network_scale_input": True}, "r.yaml")
+    cfg = load_train_config({"network_scale_input": True, "imitation_only": True, "dagger_iterations": 1},
+                            "r.yaml")
+    assert cfg.network_scale_input
