@@ -82,9 +82,9 @@ def collect_by_the_panel(teacher, keep: bool = True) -> tuple[Aggregate, np.ndar
     seen = []
     real_add = data.add
 
-    def add(depth, rel, target, iteration, allowed=None, released=None):
+    def add(depth, rel, target, iteration, allowed=None, released=None, scale_m=1.0):
         seen.append(np.array(env.allowed))  # what the filter said in that state
-        real_add(depth, rel, target, iteration, allowed, released)
+        real_add(depth, rel, target, iteration, allowed, released, scale_m)
 
     data.add = add  # type: ignore[method-assign]
     collect(env, teacher, DQNAgent(NetworkConfig()), 2, 1.0, np.random.default_rng(0), 0.1, data, 0,

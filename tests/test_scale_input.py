@@ -159,3 +159,27 @@ def test_the_config_keeps_the_lane_to_imitation() -> None:
     cfg = load_train_config({"network_scale_input": True, "imitation_only": True, "dagger_iterations": 1},
                             "r.yaml")
     assert cfg.network_scale_input
+
+
+def test_dagger_keeps_the_scale_each_state_was_flown_at_and_tells_the_student() -> None:
+    """collect() stores its env's primitive scale with every row and flies the student told it."""
+    from sim_harness.env import VecQuadNavEnv
+    from sim_harness.rl.imitation import collect
+    from sim_harness.rl.teacher import Teacher, TeacherConfig
+
+    told: list[float | None] = []
+
+    class Student(DQNAgent):
+        def greedy(self, depth, rel, allowed=None, scale_m=None):
+            told.append(scale_m)
+            return super().greedy(depth, rel, allowed, scale_m)
+
+    world = load_world(resolve_world_arg("env01"))
+    base = EnvConfig(max_steps=4, depth_history=2, position_history=3)
+    cfg = dataclasses.replace(base, primitives=dataclasses.replace(base.primitives, scale_m=0.5))
+    env = VecQuadNavEnv([world], 2, seed=0, config=cfg)
+    env.reset()
+    data = Aggregate(100, (2, 32, 32), (3, 3), 18)
+    collect(env, Teacher(TeacherConfig()), Student(SCALED), 2, 0.0, np.random.default_rng(0), 0.3, data, 0)
+    assert len(data) > 0 and set(data.scale_m[: len(data)].tolist()) == {0.5}
+    assert told and set(told) == {0.5}
