@@ -82,7 +82,7 @@ def collect_by_the_panel(teacher, keep: bool = True) -> tuple[Aggregate, np.ndar
     seen = []
     real_add = data.add
 
-    def add(depth, rel, target, iteration, allowed=None, released=None, scale_m=1.0):
+    def add(depth, rel, target, iteration, allowed=None, released=None, scale_m=None):
         seen.append(np.array(env.allowed))  # what the filter said in that state
         real_add(depth, rel, target, iteration, allowed, released, scale_m)
 

@@ -141,6 +141,10 @@ def test_a_fit_learns_an_answer_that_differs_by_scale_only_with_the_lane(reads_s
     torch.manual_seed(8)
     data = _conflicting_labels(64)
     np.testing.assert_array_equal(np.unique(data.scale_m[: len(data)]), [0.5, 1.0])
+    unscaled = Aggregate(8, (2, 32, 32), (3, 3), 18)
+    unscaled.add(data.depth[:8], data.rel[:8], data.target[:8], 0)  # no scale said: NaN, refused below
+    with pytest.raises(ValueError, match="every row's scale"):
+        DQNAgent(SCALED).scale_rows(unscaled.scale_m[:8], 8)
     agent = DQNAgent(dataclasses.replace(SCALED, scale_input=reads_scale), AgentConfig(learning_rate=1e-3))
     fit(agent, data, epochs=160.0, batch_size=64, rng=np.random.default_rng(9), optimizer=agent.optimizer)
     depth, rel = data.depth[:64].astype(np.float32), data.rel[:64]
@@ -183,3 +187,14 @@ def test_dagger_keeps_the_scale_each_state_was_flown_at_and_tells_the_student() 
     collect(env, Teacher(TeacherConfig()), Student(SCALED), 2, 0.0, np.random.default_rng(0), 0.3, data, 0)
     assert len(data) > 0 and set(data.scale_m[: len(data)].tolist()) == {0.5}
     assert told and set(told) == {0.5}
+
+
+def test_the_filter_teacher_tells_an_expert_that_reads_the_scale_the_scale_flown() -> None:
+    from sim_harness.rl.filter_teacher import FilterTeacher
+
+    torch.manual_seed(10)
+    teacher = FilterTeacher(DQN(SCALED))
+    depth, rel = (t.numpy() for t in _inputs(3))
+    assert not np.allclose(teacher.q_values(depth, rel, 0.5), teacher.q_values(depth, rel, 1.0))
+    with pytest.raises(ValueError, match="pass scale_m"):
+        teacher.q_values(depth, rel)

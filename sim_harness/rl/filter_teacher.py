@@ -60,11 +60,14 @@ class FilterTeacher:
         self.veto_margin = float(veto_margin)
         self.device = torch.device(device)
 
-    def q_values(self, depth: NDArray, rel: NDArray) -> NDArray[np.float32]:
+    def q_values(self, depth: NDArray, rel: NDArray, scale_m: float | None = None) -> NDArray[np.float32]:
+        """The expert's Q-values; ``scale_m``, the primitive scale flown, for an expert that reads
+        it (``NetworkConfig.scale_input``)."""
         with torch.inference_mode():
             d = torch.as_tensor(depth, dtype=torch.float32, device=self.device)
             r = torch.as_tensor(rel, dtype=torch.float32, device=self.device)
-            return self.model(d, r).cpu().numpy()
+            s = None if scale_m is None else torch.full((d.shape[0],), float(scale_m), device=self.device)
+            return self.model(d, r, s).cpu().numpy()
 
     def label(
         self, env: VecQuadNavEnv, depth: NDArray, rel: NDArray, temperature_m: float
@@ -74,6 +77,6 @@ class FilterTeacher:
         del temperature_m  # the labels are Q-values, not a distribution
         if env.memory is None:
             raise ValueError("the filter teacher needs the env's filter on (EnvConfig.shield.enabled)")
-        q = self.q_values(depth, rel)
+        q = self.q_values(depth, rel, env.config.primitives.scale_m)
         return Labels(veto_targets(q, env.allowed, self.veto_margin), masked_argmax(q, env.allowed),
                       np.zeros(q.shape[0], dtype=bool))

@@ -106,8 +106,9 @@ class Aggregate:
         """The states whose labels leave the filter's verdicts aside (``TeacherConfig.release_m``)."""
         self.iteration = np.zeros(capacity, dtype=np.int32)
         """The DAgger iteration each row was collected in."""
-        self.scale_m = np.zeros(capacity, dtype=np.float32)
-        """The primitive scale (m) each row was flown at (a network that reads the scale fits it)."""
+        self.scale_m = np.full(capacity, np.nan, dtype=np.float32)
+        """The primitive scale (m) each row was flown at (a network that reads the scale fits it);
+        NaN where the caller did not say, which such a network refuses."""
         self.size = 0
         self._next = 0
         self.added = 0
@@ -120,7 +121,7 @@ class Aggregate:
 
     def add(self, depth: NDArray, rel: NDArray, target: NDArray, iteration: int,
             allowed: NDArray[np.bool_] | None = None, released: NDArray[np.bool_] | None = None,
-            scale_m: float = 1.0) -> None:
+            scale_m: float | None = None) -> None:
         n = depth.shape[0]
         if not (rel.shape[0] == n and target.shape[0] == n):
             raise ValueError("depth, rel and target need the same number of rows")
@@ -133,7 +134,7 @@ class Aggregate:
         self.allowed[idx] = True if allowed is None else allowed
         self.released[idx] = False if released is None else released
         self.iteration[idx] = iteration
-        self.scale_m[idx] = scale_m
+        self.scale_m[idx] = np.nan if scale_m is None else scale_m
         self._next = int((self._next + n) % self.capacity)
         self.size = min(self.capacity, self.size + n)
         self.added += n
