@@ -107,7 +107,7 @@ class DQN(nn.Module):
             self.out = nn.Linear(32 * w, config.n_actions)
 
     def forward(self, depth: torch.Tensor, rel_pos: torch.Tensor,
-                scale_m: torch.Tensor | None = None) -> torch.Tensor:
+                scale_m: torch.Tensor | float | None = None) -> torch.Tensor:
         return self.q_from_features(self.depth_features(depth), rel_pos, scale_m)
 
     def depth_features(self, depth: torch.Tensor) -> torch.Tensor:
@@ -119,14 +119,19 @@ class DQN(nn.Module):
         return self.depth_lane(depth)
 
     def q_from_features(self, features: torch.Tensor, rel_pos: torch.Tensor,
-                        scale_m: torch.Tensor | None = None) -> torch.Tensor:
+                        scale_m: torch.Tensor | float | None = None) -> torch.Tensor:
         """The position lane, trunk and head: features (B, 64 * width), rel_pos (B, position_history, 3),
-        scale_m (B,) when the network reads the scale -> Q-values (B, n_actions)."""
+        scale_m (B,) or one scale for every row, when the network reads the scale -> Q-values
+        (B, n_actions). Raises ValueError when that scale is missing, or is not finite and > 0 in
+        every row (a row that was never told its scale)."""
         lanes = [self.pos_x(rel_pos[..., 0]), self.pos_y(rel_pos[..., 1]), self.pos_z(rel_pos[..., 2])]
         if self.config.scale_input:
             if scale_m is None:
                 raise ValueError("this network reads the primitive scale it flies at: pass scale_m (B,)")
             s = torch.as_tensor(scale_m, dtype=rel_pos.dtype, device=rel_pos.device).reshape(-1, 1)
+            if not bool((torch.isfinite(s) & (s > 0)).all()):
+                raise ValueError(f"the primitive scale must be finite and > 0 (m) in every row, got "
+                                 f"{s.unique()[:5].tolist()}")
             lanes.append(self.pos_scale(s.expand(rel_pos.shape[0], 1)))
         p = torch.cat(lanes, dim=-1)
         h = self.trunk(torch.cat([features, self.pos_merge(p)], dim=-1))

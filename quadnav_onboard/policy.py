@@ -81,16 +81,6 @@ class Policy:
         ``scale_m``, the scale of the primitives flown (not necessarily the one trained with)."""
         return self.network.scale_input
 
-    def _scale(self, scale_m: float | None, n: int) -> torch.Tensor | None:
-        if not self.reads_scale:
-            return None
-        if scale_m is None:
-            raise ValueError("this model reads the primitive scale it flies at: pass scale_m")
-        s = float(scale_m)
-        if not (np.isfinite(s) and s > 0):
-            raise ValueError(f"scale_m must be a finite scale > 0 (m), got {scale_m!r}")
-        return torch.full((n,), s, dtype=torch.float32)
-
     def q_values_batch(
         self, depth: ArrayLike, rel: ArrayLike, scale_m: float | None = None
     ) -> NDArray[np.float32]:
@@ -99,7 +89,7 @@ class Policy:
         d = torch.as_tensor(np.asarray(depth, dtype=np.float32))
         r = torch.as_tensor(np.asarray(rel, dtype=np.float32))
         with torch.inference_mode():
-            return self.model(d, r, self._scale(scale_m, d.shape[0])).numpy()
+            return self.model(d, r, scale_m).numpy()
 
     def act(
         self, depth: ArrayLike, rel: ArrayLike, allowed: ArrayLike | None = None, scale_m: float | None = None
@@ -133,8 +123,8 @@ class Policy:
         if r.shape != (self.position_history, 3):
             raise ValueError(f"rel must have shape ({self.position_history}, 3), got {r.shape}")
         with torch.inference_mode():
-            q = self.model.q_from_features(torch.from_numpy(f[None]), torch.from_numpy(r[None]),
-                                           self._scale(scale_m, 1))[0].numpy()
+            q = self.model.q_from_features(torch.from_numpy(f[None]), torch.from_numpy(r[None]), scale_m)
+        q = q[0].numpy()
         if allowed is not None and np.shape(allowed) != (self.n_actions,):
             raise ValueError(f"allowed must have shape ({self.n_actions},), got {np.shape(allowed)}")
         return int(masked_argmax(q, allowed)), q

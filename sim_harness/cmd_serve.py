@@ -70,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from quadnav_onboard.config import ConfigError, load_yaml_config
     from sim_harness.px4 import EmulatorConfig
     from sim_harness.px4.scenario import load_scenario
+    from sim_harness.sidecar import set_on_signals
     from sim_harness.vehicle_side import StartCancelled, VehicleSide, VehicleSideError
     from sim_harness.world import WorldError, load_world, resolve_world_arg
 
@@ -111,12 +112,7 @@ def run(args: argparse.Namespace) -> int:
         run_dir=run_dir,
     )
     stop = threading.Event()
-    # The handler runs in the main thread, which may hold the event's lock inside stop.wait();
-    # setting it there could deadlock, so a short thread sets it once the lock is free.
-    previous = {
-        s: signal.signal(s, lambda *_: threading.Thread(target=stop.set, daemon=True).start())
-        for s in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = set_on_signals(stop)
     print(f"quadnav-sim serve: the sim's vehicle side in world '{world.name}' ({world_path})")
     print(f"  vehicle (emulated PX4): udpin://0.0.0.0:{api_port}   (MAVSDK; vehicle.url)", flush=True)
     try:

@@ -44,12 +44,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["GEAR_HEIGHT_M", "main"]
+__all__ = ["GEAR_HEIGHT_M", "main", "set_on_signals"]
 
 GEAR_HEIGHT_M = 0.1
 """The emulator parks the body origin on the floor; a real D435 sits at least landing-gear height
 above it (else it sees no floor at all and preflight rightly refuses an all-invalid frame). The sim
 camera's height is floored at ``floor + GEAR_HEIGHT_M``; in flight (higher) nothing changes."""
+
+
+def set_on_signals(event: threading.Event,
+                   signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM)) -> dict:
+    """Install handlers that set ``event`` on ``signals``; returns the previous handlers. The set
+    runs in a short thread, not in the handler: the handler runs in the main thread, which may
+    hold the event's lock inside its own ``wait()``, and setting it there would deadlock."""
+    return {s: signal.signal(s, lambda *_: threading.Thread(target=event.set, daemon=True).start())
+            for s in signals}
 
 
 class _Exit:
@@ -58,10 +67,7 @@ class _Exit:
     def __init__(self) -> None:
         self.event = threading.Event()
         self._parent = os.getppid()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            # Not self.event.set() in the handler: the main thread may hold the event's lock inside
-            # wait(), and the set would deadlock; a short thread sets it once the lock is free.
-            signal.signal(sig, lambda *_: threading.Thread(target=self.event.set, daemon=True).start())
+        set_on_signals(self.event)
 
     def due(self) -> bool:
         if os.getppid() != self._parent:

@@ -71,16 +71,12 @@ class DQNAgent:
         return masked_argmax(q, allowed)
 
     def scale_rows(self, scale_m: float | NDArray | None, n: int) -> torch.Tensor | None:
-        """``scale_m`` as the network's scale input (n,), or None for a network that does not read
-        it (or when none is given: the network then says what it is missing). Raises ValueError on
-        a scale that is not finite and > 0 (an aggregate's row that was not told its scale)."""
+        """``scale_m`` (one scale, or one per row) as the network's scale input (n,), or None for a
+        network that does not read it, or when none is given (the network then says what it is
+        missing, or which rows were never told their scale)."""
         if scale_m is None or not self.q.config.scale_input:
             return None
-        rows = np.broadcast_to(np.asarray(scale_m, dtype=np.float32), (n,)).copy()
-        if not (np.isfinite(rows).all() and (rows > 0).all()):
-            raise ValueError("a network that reads the scale needs every row's scale (finite, > 0): "
-                             f"got {np.unique(rows)[:5]}")
-        return self._t(rows)
+        return self._t(np.broadcast_to(np.asarray(scale_m, dtype=np.float32), (n,)).copy())
 
     def _t(self, a: NDArray) -> torch.Tensor:
         return torch.as_tensor(a).to(self.device, non_blocking=True)

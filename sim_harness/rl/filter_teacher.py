@@ -66,8 +66,7 @@ class FilterTeacher:
         with torch.inference_mode():
             d = torch.as_tensor(depth, dtype=torch.float32, device=self.device)
             r = torch.as_tensor(rel, dtype=torch.float32, device=self.device)
-            s = None if scale_m is None else torch.full((d.shape[0],), float(scale_m), device=self.device)
-            return self.model(d, r, s).cpu().numpy()
+            return self.model(d, r, scale_m).cpu().numpy()
 
     def label(
         self, env: VecQuadNavEnv, depth: NDArray, rel: NDArray, temperature_m: float
