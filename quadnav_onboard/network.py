@@ -10,11 +10,14 @@ input channels; ``position_history`` feeds the last k relative positions to each
 ``dueling`` splits the head's last layer into value and advantage streams; ``width`` multiplies
 every hidden layer's size (its channels and units), the inputs and outputs staying as they are;
 ``scale_input`` feeds the primitive scale the network flies at (metres per axis of one primitive)
-to a fourth position sub-lane (1 -> 8), so one network can answer differently at 0.5 m and 1 m.
+to a fourth position sub-lane (1 -> 8), so one network can answer differently at 0.5 m and 1 m;
+``scale_range_m`` (lo, hi) has that lane read the scale on a log axis centred on the range, lo -> -1
+and hi -> +1, instead of in metres.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import torch
@@ -47,23 +50,52 @@ class NetworkConfig:
     scale_input: bool = False
     """The network also reads the primitive scale it flies at (m), in its own position sub-lane;
     every caller then passes it (the paper: no)."""
+    scale_range_m: tuple[float, float] | None = None
+    """With ``scale_input``: the scale lane reads ``(2 log2 s - log2 lo - log2 hi) / (log2 hi - log2 lo)``
+    for the scales (lo, hi) it was trained at, -1 at lo and +1 at hi; None: the scale in metres.
+    Range: 0 < lo < hi <= 5 (m)."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int) and 1 <= self.width <= 4):
             raise ValueError(f"network width must be an integer in 1-4, got {self.width!r}")
         if not isinstance(self.scale_input, bool):
             raise ValueError(f"network scale_input must be true or false, got {self.scale_input!r}")
+        if self.scale_range_m is not None:
+            r = self.scale_range_m
+            ok = (isinstance(r, (tuple, list)) and len(r) == 2
+                  and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in r)
+                  and all(math.isfinite(v) for v in r) and 0 < r[0] < r[1] <= 5)
+            if not ok:
+                raise ValueError(f"network scale_range_m must be two scales (m) with 0 < lo < hi <= 5, "
+                                 f"got {r!r}")
+            if not self.scale_input:
+                raise ValueError("network scale_range_m is how the scale lane reads the scale: it needs "
+                                 "scale_input: true")
+            object.__setattr__(self, "scale_range_m", (float(r[0]), float(r[1])))
 
     def to_dict(self) -> dict[str, object]:
-        """The config as a checkpoint stores it; ``width`` and ``scale_input`` only where they are
-        not the paper's, so a checkpoint of the paper's network reads the same in builds that
-        predate the keys (and one that reads the scale is refused by them, not misread)."""
+        """The config as a checkpoint stores it; ``width``, ``scale_input`` and ``scale_range_m``
+        only where they are not the paper's, so a checkpoint of the paper's network reads the same
+        in builds that predate the keys (and one that reads the scale is refused by them, not
+        misread)."""
         d = asdict(self)
         if self.width == 1:
             del d["width"]
         if not self.scale_input:
             del d["scale_input"]
+        if self.scale_range_m is None:
+            del d["scale_range_m"]
+        else:
+            d["scale_range_m"] = list(self.scale_range_m)
         return d
+
+    def scale_feature(self, scale_m: torch.Tensor) -> torch.Tensor:
+        """What the scale lane reads for ``scale_m`` (m): the scale itself, or with
+        ``scale_range_m`` its log, -1 at the range's low end and +1 at its high end."""
+        if self.scale_range_m is None:
+            return scale_m
+        lo, hi = (math.log2(v) for v in self.scale_range_m)
+        return (2.0 * torch.log2(scale_m) - lo - hi) / (hi - lo)
 
 
 class DQN(nn.Module):
@@ -132,7 +164,7 @@ class DQN(nn.Module):
             if not bool((torch.isfinite(s) & (s > 0)).all()):
                 raise ValueError(f"the primitive scale must be finite and > 0 (m) in every row, got "
                                  f"{s.unique()[:5].tolist()}")
-            lanes.append(self.pos_scale(s.expand(rel_pos.shape[0], 1)))
+            lanes.append(self.pos_scale(self.config.scale_feature(s).expand(rel_pos.shape[0], 1)))
         p = torch.cat(lanes, dim=-1)
         h = self.trunk(torch.cat([features, self.pos_merge(p)], dim=-1))
         if self.config.dueling:

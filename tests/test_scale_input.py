@@ -23,6 +23,7 @@ from sim_harness.rl.agent import AgentConfig, DQNAgent
 from sim_harness.rl.config import ConfigError, load_train_config
 from sim_harness.rl.evaluate import PolicyGreedy, evaluate, policy_greedy_fn
 from sim_harness.rl.imitation import Aggregate, fit
+from sim_harness.rl.train import network_config_for
 from sim_harness.rl.widen import can_widen, widen
 from sim_harness.world import load_world, resolve_world_arg
 
@@ -68,6 +69,65 @@ def test_widening_adds_the_lane_read_at_zero_weight() -> None:
     assert wide.pos_scale[0].weight.abs().sum() > 0  # a fresh lane, so it learns from the first step
     with pytest.raises(ValueError, match="one at a time"):
         widen(source, dataclasses.replace(SCALED, width=2), seed=3)
+
+
+LOG_RANGE = dataclasses.replace(SCALED, scale_range_m=(0.5, 1.0))
+
+
+def test_the_log_range_lane_reads_minus_one_and_plus_one_at_the_ends_of_its_range() -> None:
+    scales = torch.tensor([0.5, 1.0, 0.5 ** 0.5, 2.0])
+    torch.testing.assert_close(LOG_RANGE.scale_feature(scales), torch.tensor([-1.0, 1.0, 0.0, 3.0]))
+    torch.testing.assert_close(SCALED.scale_feature(scales), scales)  # without a range: metres
+    torch.manual_seed(5)
+    net = DQN(LOG_RANGE)
+    metres = DQN(SCALED)
+    metres.load_state_dict(net.state_dict())  # the same weights: only what the lane reads differs
+    depth, rel = _inputs(3)
+    assert not torch.allclose(net(depth, rel, 0.5), metres(depth, rel, 0.5))
+    with pytest.raises(ValueError, match="scale"):
+        net(depth, rel)
+
+
+@pytest.mark.parametrize("bad", [(1.0, 0.5), (0.5, 0.5), (0.0, 1.0), (0.5, float("nan")), (0.5, 6.0),
+                                 (0.5,), "0.5-1.0", (True, 1.0)])
+def test_a_bad_scale_range_is_refused_by_name(bad: object) -> None:
+    with pytest.raises(ValueError, match=r"scale_range_m must be two scales \(m\) with 0 < lo < hi <= 5"):
+        dataclasses.replace(SCALED, scale_range_m=bad)
+    with pytest.raises(ValueError, match="needs scale_input: true"):
+        NetworkConfig(scale_range_m=(0.5, 1.0))
+
+
+def test_the_checkpoint_keeps_the_range_and_widening_keeps_it_fixed(tmp_path) -> None:
+    assert "scale_range_m" not in SCALED.to_dict()
+    assert LOG_RANGE.to_dict()["scale_range_m"] == [0.5, 1.0]
+    loaded = load_checkpoint(save_checkpoint(tmp_path / "r.pt", DQN(LOG_RANGE)))
+    assert loaded.network == LOG_RANGE and loaded.network.scale_range_m == (0.5, 1.0)
+    torch.manual_seed(6)
+    source = DQN(dataclasses.replace(SCALED, scale_input=False))
+    wide = DQN(LOG_RANGE)
+    wide.load_state_dict(widen(source, LOG_RANGE, seed=3))
+    depth, rel = _inputs(4)
+    for scale in (0.5, 1.0):
+        torch.testing.assert_close(wide(depth, rel, scale), source(depth, rel), rtol=0, atol=0)
+    # a network that already reads the scale one way is not re-read another way
+    assert not can_widen(SCALED, LOG_RANGE) and not can_widen(LOG_RANGE, SCALED)
+    assert can_widen(LOG_RANGE, dataclasses.replace(LOG_RANGE, depth_history=3))
+
+
+def test_the_log_range_encoding_takes_its_range_from_the_scales_trained() -> None:
+    keys = {"network_scale_input": True, "imitation_only": True, "dagger_iterations": 1}
+    cfg = load_train_config({**keys, "imitation_scales": [1.0, 0.5], "network_scale_encoding": "log-range"},
+                            "r.yaml")
+    assert network_config_for(cfg).scale_range_m == (0.5, 1.0)
+    assert network_config_for(load_train_config({**keys, "imitation_scales": [0.5, 1.0]}, "r.yaml")) \
+        .scale_range_m is None
+    with pytest.raises(ConfigError, match=r"r\.yaml: key 'network_scale_encoding': .*give two scales"):
+        load_train_config({**keys, "imitation_scales": [1.0], "network_scale_encoding": "log-range"},
+                          "r.yaml")
+    with pytest.raises(ConfigError, match=r"key 'network_scale_encoding': .*set network_scale_input: true"):
+        load_train_config({"network_scale_encoding": "log-range"}, "r.yaml")
+    with pytest.raises(ConfigError, match=r"key 'network_scale_encoding': bad value 'log'"):
+        load_train_config({**keys, "network_scale_encoding": "log"}, "r.yaml")
 
 
 @pytest.fixture(scope="module")

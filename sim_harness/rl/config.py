@@ -129,6 +129,11 @@ class TrainConfig:
     can answer differently at 0.5 m and 1 m; every flight then tells it the scale flown. An
     ``init_model`` without the lane gets one it reads at zero weight, computing what it did.
     Imitation only (``imitation_only: true`` with DAgger): the RL updates do not carry the scale."""
+    network_scale_encoding: str = "metres"
+    """What the scale lane of ``network_scale_input`` reads: ``metres``, the scale itself (0.5 or
+    1.0); ``log-range``, its log mapped to -1 at the smallest of ``imitation_scales`` and +1 at the
+    largest, so the two scales look as different to the lane as they can (the network stores the
+    range, ``NetworkConfig.scale_range_m``). One of: metres, log-range."""
     prioritized_replay: bool = False
     """Prioritised replay (beyond the paper): transitions sampled in proportion to |TD error|^α,
     the loss weighted by importance sampling (sim_harness.rl.replay.PrioritizedReplayBuffer)."""
@@ -426,6 +431,21 @@ def load_train_config(mapping: Any, source: str) -> TrainConfig:
             f"{source}: key 'network_scale_input': bad value {cfg.network_scale_input!r}: the scale "
             "is learned by imitation alone (the RL updates do not carry it): set imitation_only: "
             "true and dagger_iterations > 0"
+        )
+    if cfg.network_scale_encoding not in ("metres", "log-range"):
+        raise ConfigError(
+            f"{source}: key 'network_scale_encoding': bad value {cfg.network_scale_encoding!r}: "
+            "one of 'metres', 'log-range'"
+        )
+    if cfg.network_scale_encoding != "metres" and not cfg.network_scale_input:
+        raise ConfigError(
+            f"{source}: key 'network_scale_encoding': bad value {cfg.network_scale_encoding!r}: it "
+            "says how the scale lane reads the scale: set network_scale_input: true"
+        )
+    if cfg.network_scale_encoding == "log-range" and len(set(cfg.imitation_scales)) < 2:
+        raise ConfigError(
+            f"{source}: key 'network_scale_encoding': bad value {cfg.network_scale_encoding!r}: the "
+            f"range is that of imitation_scales, {list(cfg.imitation_scales)!r}: give two scales or more"
         )
     if cfg.lab_dagger_noise is not None and cfg.lab_layouts == 0:
         raise ConfigError(

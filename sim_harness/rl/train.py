@@ -146,6 +146,8 @@ def network_config_for(cfg: TrainConfig) -> NetworkConfig:
         dueling=cfg.dueling,
         width=cfg.network_width,
         scale_input=cfg.network_scale_input,
+        scale_range_m=((min(cfg.imitation_scales), max(cfg.imitation_scales))
+                       if cfg.network_scale_encoding == "log-range" else None),
     )
 
 

@@ -35,7 +35,7 @@ def can_widen(source: NetworkConfig, target: NetworkConfig) -> bool:
     hidden layers at least as wide, and perhaps the scale lane added."""
     same_otherwise = dataclasses.replace(
         source, depth_history=target.depth_history, position_history=target.position_history,
-        width=target.width, scale_input=target.scale_input,
+        width=target.width, scale_input=target.scale_input, scale_range_m=target.scale_range_m,
     ) == target
     return (
         same_otherwise
@@ -43,6 +43,7 @@ def can_widen(source: NetworkConfig, target: NetworkConfig) -> bool:
         and target.position_history >= source.position_history
         and target.width >= source.width
         and target.scale_input >= source.scale_input
+        and (not source.scale_input or source.scale_range_m == target.scale_range_m)
     )
 
 
@@ -53,7 +54,7 @@ def widen_history(model: DQN, target: NetworkConfig) -> dict[str, torch.Tensor]:
     ``target`` differs from the model's config by more than longer histories."""
     source = model.config
     if not can_widen(source, target) or target.width != source.width \
-            or target.scale_input != source.scale_input:
+            or (target.scale_input, target.scale_range_m) != (source.scale_input, source.scale_range_m):
         raise ValueError(
             f"cannot widen a network of {source} to {target}: only longer depth and position "
             "histories can be added"
@@ -109,8 +110,8 @@ def widen(model: DQN, target: NetworkConfig, seed: int = 0) -> dict[str, torch.T
         raise ValueError(f"cannot widen a network of {source} to {target}: add the scale lane "
                          "or widen the layers, one at a time")
     if add_scale:
-        return _add_scale_lane(widen_history(model, dataclasses.replace(target, scale_input=False)),
-                               target, seed)
+        unlaned = dataclasses.replace(target, scale_input=False, scale_range_m=None)
+        return _add_scale_lane(widen_history(model, unlaned), target, seed)
     if target.width == source.width:
         return widen_history(model, target)
     if source.width != 1:
