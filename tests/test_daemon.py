@@ -271,6 +271,23 @@ async def test_a_setpoint_speed_that_does_not_match_the_primitives_is_refused_be
     assert rig.commands() == []
 
 
+async def test_a_model_that_reads_the_scale_is_flown_only_within_the_scales_it_reads(tmp_path: Path) -> None:
+    """The fast config's 0.25 m primitives: refused for a lane read across 0.5-1 m, flown for one
+    read across 0.25-1 m."""
+    outside = constant_action_checkpoint(str(tmp_path / "r.pt"), FORWARD, NetworkConfig(
+        scale_input=True, scale_range_m=(0.5, 1.0)))
+    rig = Rig(Policy(outside))
+    s = await asyncio.wait_for(rig.daemon.run(), 10)
+    assert s.stop_reason == "preflight_failed" and s.exit_code == 2
+    assert "primitives.scale_m 0.25 is outside the scales the model reads, 0.5-1 m" in s.detail
+    assert rig.commands() == []
+    inside = constant_action_checkpoint(str(tmp_path / "i.pt"), FORWARD, NetworkConfig(
+        scale_input=True, scale_range_m=(0.25, 1.0)))
+    rig2 = Rig(Policy(inside))
+    s2 = await rig2.in_mission_then(lambda: rig2.daemon.handle_signal(signal.SIGINT))
+    assert s2.stop_reason == "operator_stop" and "arm" in rig2.commands()
+
+
 async def test_a_model_of_the_wrong_shape_is_refused_before_arming(tmp_path: Path) -> None:
     torch.manual_seed(0)
     path = save_checkpoint(tmp_path / "five.pt", DQN(NetworkConfig(n_actions=5)))

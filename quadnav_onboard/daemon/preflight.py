@@ -222,6 +222,16 @@ class Preflight:
                 f"({self.prims.scale_m:g} m per {self.prims.duration_s:g} s = {prim_speed:g} m/s): "
                 "the model was trained with the moving setpoint advancing one primitive per step",
             )
+        trained = pol.network.scale_range_m
+        scale = self.prims.scale_m
+        if trained is not None and not (trained[0] * (1 - 1e-6) <= scale <= trained[1] * (1 + 1e-6)):
+            # the scale lane reads the scale across the range trained: past it, a value never seen
+            return PreflightCheck(
+                "model",
+                False,
+                f"primitives.scale_m {scale:g} is outside the scales the model reads, "
+                f"{trained[0]:g}-{trained[1]:g} m (its network's scale_range_m): fly it within them",
+            )
         try:
             t0 = time.monotonic()
             q = self._test_decision()
