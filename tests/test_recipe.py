@@ -54,6 +54,8 @@ NOISE_PAPER_MARGIN1_HOLDING_SCALE_LOGRANGE = NOISE_PAPER_MARGIN1_HOLDING_SCALE.w
     NOISE_PAPER_MARGIN1_HOLDING_SCALE.stem + "-logrange.yaml")
 NOISE_PAPER_MARGIN1_HOLDING_DOUBLE1M = NOISE_PAPER_MARGIN1_HOLDING.with_name(
     NOISE_PAPER_MARGIN1_HOLDING.stem + "-double1m.yaml")
+NOISE_PAPER_MARGIN1_HOLDING_DOUBLE1M_ROUND3 = NOISE_PAPER_MARGIN1_HOLDING_DOUBLE1M.with_name(
+    NOISE_PAPER_MARGIN1_HOLDING_DOUBLE1M.stem + "-round3.yaml")
 NOISE_PAPER_MARGIN1_HOLDING_DOUBLED = NOISE_PAPER_MARGIN1_HOLDING.with_name(
     NOISE_PAPER_MARGIN1_HOLDING.stem + "-doubled.yaml")
 NOISE_PAPER_MARGIN03 = SOFT_RELEASE_E2.with_name(SOFT_RELEASE_E2.stem + "-noise-paper-margin03.yaml")
@@ -313,10 +315,15 @@ def test_release_recipe_is_the_soft_recipe_with_the_teacher_released_at_0_75_m()
      ["--imitation-margin-weight", "1", "--imitation-margin-against", "holding",
       "--imitation-scales", "1.0", "1.0", "0.5", "0.5"],
      {"imitation_scales": (1.0, 1.0, 0.5, 0.5), "imitation_margin_against": "holding"}),
+    (NOISE_PAPER_MARGIN1_HOLDING_DOUBLE1M_ROUND3, SOFT_RELEASE_E2_NOISE_PAPER,
+     ["--imitation-margin-weight", "1", "--imitation-margin-against", "holding",
+      "--imitation-scales", "1.0", "1.0", "0.5", "--init-model", "quadnav_onboard/models/default.pt",
+      "--init-model-sha256", "4fa02fa9dce4a108e7afa6194486274fbf9c3e7cddf451fd8db4df77c326ad70"],
+     {"imitation_scales": (1.0, 1.0, 0.5), "init_model": "quadnav_onboard/models/default.pt"}),
 ], ids=["two-pass", "noise", "noise-paper", "failures-noise-paper", "margin1", "margin03", "margin3",
         "margin1-gap02", "margin3-gap02", "margin1-holding", "margin1-holding-scale",
         "margin1-holding-scale-logrange", "margin1-holding-double1m",
-        "margin1-holding-doubled"])
+        "margin1-holding-doubled", "margin1-holding-double1m-round3"])
 def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_with(
     recipe: Path, base: Path, flag: list[str], expect: dict[str, float]
 ) -> None:
@@ -330,7 +337,8 @@ def test_a_recipe_file_is_its_base_with_the_flag_its_first_seeds_were_trained_wi
     -margin1-holding-scale.yaml that with ``--network-scale-input``, and -scale-logrange.yaml
     that with ``--network-scale-encoding log-range``, and -margin1-holding-double1m.yaml the holding
     keys with ``--imitation-scales 1.0 1.0 0.5``, and -margin1-holding-doubled.yaml with
-    ``--imitation-scales 1.0 1.0 0.5 0.5``, each its own name."""
+    ``--imitation-scales 1.0 1.0 0.5 0.5``, and -double1m-round3.yaml the double-1m keys with
+    ``--init-model`` the bundled model, pinned by its sha256, each its own name."""
     got = cmd_train.config_for(_parse(["--recipe", str(recipe)]))
     flags = cmd_train.config_for(_parse(["--recipe", str(base), *flag]))
     assert got.name == recipe.stem
